@@ -1,0 +1,171 @@
+"""Closed-form quantities derived from the parameter set (no MuJoCo here: these are the oracles too).
+
+The lumped chain, output-referred, absolute angles θ:
+    rotor+gear (J_gear, LuGre to ground) --backlash-- flange+hub (J_out) --K_t-- ring+lever (J_lever)
+    --k_lc·L² (locked fixture only)-- ground.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import asdict, dataclass
+
+import numpy as np
+import scipy.linalg
+
+from sim.params import TestbedParams
+
+
+@dataclass(frozen=True)
+class Derived:
+    """Derived physical quantities, SI units in the field names."""
+
+    flexure_shear_modulus_pa: float
+    flexure_second_moment_m4: float
+    spoke_stiffness_n_per_m: float
+    flexure_stiffness_nm_per_rad: float
+    hub_inertia_kgm2: float
+    hub_mass_kg: float
+    flange_inertia_kgm2: float
+    output_inertia_kgm2: float
+    reflected_rotor_inertia_kgm2: float
+    ring_inertia_kgm2: float
+    lever_bar_inertia_kgm2: float
+    lever_side_inertia_kgm2: float
+    lever_side_mass_kg: float
+    flexure_damping_nms_per_rad: float
+    flexure_mode_hz: float
+    loadcell_stiffness_n_per_m: float
+    lever_bending_stiffness_n_per_m: float
+    tip_support_stiffness_n_per_m: float
+    loadcell_rot_stiffness_nm_per_rad: float
+    loadcell_rot_damping_nms_per_rad: float
+    presliding_damping_nms_per_rad: float
+    motor_peak_torque_motor_side_nm: float
+
+    def to_dict(self) -> dict[str, float]:
+        return asdict(self)
+
+
+def annulus_inertia(density: float, r_in: float, r_out: float, thickness: float) -> tuple[float, float]:
+    """Mass [kg] and polar moment of inertia [kg·m²] of a flat annulus about its axis."""
+    mass = density * math.pi * (r_out**2 - r_in**2) * thickness
+    return mass, 0.5 * mass * (r_out**2 + r_in**2)
+
+
+def flexure_stiffness(p: TestbedParams) -> tuple[float, float, float, float]:
+    """Paper Eq. 7: K_t = n·r_i²·(l³/(3EI) + l/(κGA))⁻¹ with I = h·b³/12, A = b·h, G = E/(2(1+ν)).
+
+    Returns (K_t [N·m/rad], k_b [N/m], I [m⁴], G [Pa]). The paper writes n = 4 spokes.
+    """
+    f = p.flexure
+    shear_modulus = f.youngs_modulus_pa / (2.0 * (1.0 + f.poisson_ratio))
+    second_moment = f.beam_height_m * f.beam_width_m**3 / 12.0
+    area = f.beam_width_m * f.beam_height_m
+    compliance = (f.beam_length_m**3 / (3.0 * f.youngs_modulus_pa * second_moment)
+                  + f.beam_length_m / (f.shear_correction * shear_modulus * area))
+    k_b = 1.0 / compliance
+    return f.spoke_count * f.inner_radius_m**2 * k_b, k_b, second_moment, shear_modulus
+
+
+def derive(p: TestbedParams) -> Derived:
+    """All derived quantities of a parameter set."""
+    f, lever = p.flexure, p.lever
+    k_t, k_b, second_moment, shear = flexure_stiffness(p)
+    # Hub: the moving central part of the flexure, an annulus r_bore..r_i of the beam height (assumed).
+    hub_mass, hub_j = annulus_inertia(f.density_kg_m3, f.hub_bore_radius_m, f.inner_radius_m,
+                                      f.beam_height_m)
+    flange_j = 0.5 * p.flange.mass_kg * p.flange.radius_m**2
+    # Outer ring r_i + l .. r_o carries the lever; the spokes' own inertia (4 x 1.7 g) is neglected.
+    ring_mass, ring_j = annulus_inertia(f.density_kg_m3, f.inner_radius_m + f.beam_length_m,
+                                        f.outer_radius_m, f.beam_height_m)
+    bar_mass = lever.density_kg_m3 * lever.length_m * lever.width_m * lever.thickness_m
+    bar_j = bar_mass * (lever.length_m**2 / 3.0 + lever.width_m**2 / 12.0)  # bar from the axis to the tip
+    lever_j = ring_j + bar_j
+    n = p.motor.gear_ratio
+    j_reflected = n**2 * p.motor.rotor_inertia_kgm2
+    # Tip support: the load cell's spring in series with the lever bending as a cantilever (3EI/L³,
+    # bending in the plane of rotation, I = t·w³/12); as a rotation spring it is k·L².
+    k_cell = p.loadcell.capacity_n / p.loadcell.full_scale_deflection_m
+    k_bend = 3.0 * lever.youngs_modulus_pa * lever.thickness_m * lever.width_m**3 / 12.0 / lever.length_m**3
+    k_tip = 1.0 / (1.0 / k_cell + 1.0 / k_bend)
+    k_lc = k_tip * lever.length_m**2
+    return Derived(
+        flexure_shear_modulus_pa=shear,
+        flexure_second_moment_m4=second_moment,
+        spoke_stiffness_n_per_m=k_b,
+        flexure_stiffness_nm_per_rad=k_t,
+        hub_inertia_kgm2=hub_j,
+        hub_mass_kg=hub_mass,
+        flange_inertia_kgm2=flange_j,
+        output_inertia_kgm2=hub_j + flange_j,
+        reflected_rotor_inertia_kgm2=j_reflected,
+        ring_inertia_kgm2=ring_j,
+        lever_bar_inertia_kgm2=bar_j,
+        lever_side_inertia_kgm2=lever_j,
+        lever_side_mass_kg=ring_mass + bar_mass,
+        flexure_damping_nms_per_rad=2.0 * f.structural_damping_ratio * math.sqrt(k_t * lever_j),
+        flexure_mode_hz=math.sqrt(k_t / hub_j) / (2.0 * math.pi),
+        loadcell_stiffness_n_per_m=k_cell,
+        lever_bending_stiffness_n_per_m=k_bend,
+        tip_support_stiffness_n_per_m=k_tip,
+        loadcell_rot_stiffness_nm_per_rad=k_lc,
+        loadcell_rot_damping_nms_per_rad=2.0 * p.loadcell.damping_ratio * math.sqrt(k_lc * lever_j),
+        presliding_damping_nms_per_rad=2.0 * p.friction.presliding_damping_ratio * math.sqrt(
+            p.friction.presliding_stiffness_nm_per_rad * j_reflected),
+        motor_peak_torque_motor_side_nm=p.motor.peak_torque_nm / n,
+    )
+
+
+FIXTURES = ("locked", "free")
+
+
+def lumped_modes_hz(p: TestbedParams, fixture: str, backlash_closed: bool, gear_stuck: bool = True) -> np.ndarray:
+    """Undamped natural frequencies [Hz] of the lumped chain, ascending, rigid-body modes (0 Hz) included.
+
+    ``gear_stuck`` adds the LuGre presliding stiffness from the gear to ground (the gear at rest);
+    ``backlash_closed`` merges gear and output flange (a stop in contact).
+    """
+    if fixture not in FIXTURES:
+        raise ValueError(f"fixture = {fixture!r}: valid values are {FIXTURES}")
+    d = derive(p)
+    j_gear = d.reflected_rotor_inertia_kgm2
+    masses = [j_gear, d.output_inertia_kgm2, d.lever_side_inertia_kgm2]
+    k = np.zeros((3, 3))
+
+    def spring(i: int, j: int | None, stiffness: float) -> None:
+        k[i, i] += stiffness
+        if j is not None:
+            k[j, j] += stiffness
+            k[i, j] -= stiffness
+            k[j, i] -= stiffness
+
+    if gear_stuck:
+        spring(0, None, p.friction.presliding_stiffness_nm_per_rad)
+    spring(1, 2, d.flexure_stiffness_nm_per_rad)
+    if fixture == "locked":
+        spring(2, None, d.loadcell_rot_stiffness_nm_per_rad)
+    m = np.diag(masses)
+    if backlash_closed:  # θ_gear = θ_out: reduce with T mapping (θ_gear, θ_lever) -> (θ_gear, θ_out, θ_lever)
+        t = np.array([[1.0, 0.0], [1.0, 0.0], [0.0, 1.0]])
+        k, m = t.T @ k @ t, t.T @ m @ t
+    omega_sq = scipy.linalg.eigh(k, m, eigvals_only=True)
+    return np.sqrt(np.clip(omega_sq, 0.0, None)) / (2.0 * math.pi)
+
+
+def stiffest_mode_rad_s(p: TestbedParams, fixture: str) -> float:
+    """Highest natural frequency [rad/s] over the backlash states and friction states of a fixture."""
+    return 2.0 * math.pi * max(float(lumped_modes_hz(p, fixture, closed, stuck).max())
+                               for closed in (True, False) for stuck in (True, False))
+
+
+def physics_timestep(p: TestbedParams, fixture: str) -> tuple[float, int]:
+    """The physics step h [s] and substeps per control tick from the stated rule.
+
+    Rule: h = T_ctrl / n with the smallest integer n such that ω_max·h <= simulation.max_omega_dt, where
+    ω_max is the stiffest mode of the lumped chain in any backlash or friction state. The current loop and
+    the LuGre bristle state are integrated exactly by MuJoCo (exponential update), so they do not bound h.
+    """
+    t_ctrl = p.simulation.control_period_s
+    n = max(1, math.ceil(t_ctrl * stiffest_mode_rad_s(p, fixture) / p.simulation.max_omega_dt))
+    return t_ctrl / n, n

@@ -1,0 +1,321 @@
+"""The testbed's physical parameters: one typed source of truth.
+
+Every field is SI, carries its unit and its source in ``field.metadata`` and a valid range. Groups follow the
+parts of the rig (motor, gear friction, backlash, flexure, output flange, lever, load cell, thermal,
+simulation). Values are given *at the gear output* where a user would measure them (friction torques,
+presliding stiffness); the model builder converts them to motor-shaft units for MuJoCo.
+
+Overrides come from TOML (``[group] field = value``) through :func:`load_params`; an unknown key, a wrong
+type or a value out of range raises :class:`ParameterError` naming the field, the value and the range.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import tomllib
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+INF = math.inf
+
+
+class ParameterError(ValueError):
+    """A parameter set that is not physically valid; the message names the field and its valid range."""
+
+
+def quantity(default: float, unit: str, source: str, low: float = -INF, high: float = INF,
+             *, low_open: bool = False) -> Any:
+    """A dataclass field with unit, source and valid range ``[low, high]`` (``(low, high]`` if low_open)."""
+    return field(default=default, metadata={"unit": unit, "source": source, "low": low, "high": high,
+                                            "low_open": low_open})
+
+
+@dataclass(frozen=True)
+class MotorParams:
+    """SteadyWin GIM8108 BLDC with its planetary stage, torque-commanded through the driver's current loop."""
+
+    gear_ratio: float = quantity(
+        8.0, "1", "assumed: GIM8108-8 variant (SteadyWin names the planetary ratio in the suffix); the 8:1 "
+        "model is the one rated 18 N·m peak as the paper states (Sec. II)", 1.0, 200.0)
+    rotor_inertia_kgm2: float = quantity(
+        1.0e-4, "kg·m²", "assumed: thin-rim estimate m·r² of an 81 mm outrunner rotor (can + magnets "
+        "~0.075 kg at mean radius ~0.036 m); not in the paper or the vendor's sheet", 0.0, 1.0, low_open=True)
+    rotor_mass_kg: float = quantity(
+        0.075, "kg", "assumed: can + magnets of an 81 mm outrunner, the mass of the thin-rim estimate",
+        0.0, 10.0, low_open=True)
+    torque_constant_nm_per_a: float = quantity(
+        0.1, "N·m/A", "assumed: motor-side q-axis constant of a ~100 rpm/V 8108 outrunner (60/(2π·KV))",
+        0.0, 10.0, low_open=True)
+    winding_resistance_ohm: float = quantity(
+        0.3, "Ω", "assumed: dc-equivalent winding resistance of an 8108 outrunner, used for copper losses "
+        "(heat into the thermal model) and back-EMF bookkeeping", 0.0, 100.0, low_open=True)
+    current_loop_time_constant_s: float = quantity(
+        1.6e-4, "s", "assumed: first-order closed current loop of 1 kHz bandwidth, 1/(2π·1 kHz); the "
+        "driver accepts torque commands up to 2 kHz (paper Sec. II)", 0.0, 0.1, low_open=True)
+    peak_torque_nm: float = quantity(
+        18.0, "N·m", "paper Sec. II: GIM8108 maximum torque at the output", 0.0, 1000.0, low_open=True)
+    command_delay_s: float = quantity(
+        5.0e-4, "s", "assumed: CAN-FD transfer and driver processing of one torque command; the paper "
+        "gives none", 0.0, 0.05)
+
+
+@dataclass(frozen=True)
+class GearFrictionParams:
+    """Gearbox friction at the output (LuGre, MuJoCo's dcmotor) plus a load-dependent part (written in Python)."""
+
+    breakaway_torque_nm: float = quantity(
+        0.13, "N·m", "paper Sec. V: stiction threshold ≈ 0.13 N·m (smallest command that starts sustained "
+        "motion)", 0.0, INF, low_open=True)
+    coulomb_torque_nm: float = quantity(
+        0.09, "N·m", "assumed: sliding level ~0.7 of breakaway, typical Stribeck drop of greased "
+        "planetary stages", 0.0, INF, low_open=True)
+    stribeck_velocity_rad_s: float = quantity(
+        0.05, "rad/s", "assumed: output-side Stribeck velocity of a greased planetary stage", 0.0, INF,
+        low_open=True)
+    viscous_nms_per_rad: float = quantity(
+        0.02, "N·m·s/rad", "assumed: output-side viscous friction of grease and bearings", 0.0, INF)
+    presliding_stiffness_nm_per_rad: float = quantity(
+        2000.0, "N·m/rad", "assumed: LuGre bristle stiffness sigma0 at the output; presliding "
+        "displacement breakaway/sigma0 = 65 µrad (~0.65 µm at a 10 mm gear pitch radius)", 0.0, INF,
+        low_open=True)
+    presliding_damping_ratio: float = quantity(
+        0.5, "1", "assumed: bristle damping sigma1 = 2·ζ·sqrt(sigma0·J_reflected) (Canudas de Wit et al. "
+        "1995 size sigma1 from sigma0 and the moving mass)", 0.0, 10.0)
+    load_friction_coefficient: float = quantity(
+        0.1, "1", "assumed: friction added per unit transmitted torque, 1 - η for a single planetary stage "
+        "of efficiency η ≈ 0.9; not native to MuJoCo, applied by sim.plant", 0.0, 1.0)
+
+
+@dataclass(frozen=True)
+class BacklashParams:
+    """Dead band between gear output and the sensor hub: MuJoCo's hinge with limited range."""
+
+    width_rad: float = quantity(
+        3.5e-3, "rad", "assumed: 0.2° total dead band, typical of low-cost single-stage planetary "
+        "actuators; the paper reports backlash but no value (Sec. V)", 0.0, 0.2, low_open=True)
+    stop_time_constant_s: float = quantity(
+        4.0e-4, "s", "tuned: solref time constant of the stops; >= 2 physics steps for stability, chosen "
+        "with stop_impedance so the stop penetrates < 10 % of the gap at 18 N·m (tests/test_plant_physics)",
+        0.0, 1.0, low_open=True)
+    stop_impedance: float = quantity(
+        0.999, "1", "tuned: solimp d0 = dwidth of the stops; (1-d)/d sets the static penetration",
+        0.9, 0.9999)
+
+
+@dataclass(frozen=True)
+class FlexureParams:
+    """Four-spoke flexure (paper Sec. II, Eq. 7, Table I) and its material."""
+
+    beam_length_m: float = quantity(0.021, "m", "paper Table I: l", 0.0, 1.0, low_open=True)
+    beam_width_m: float = quantity(0.004, "m", "paper Table I: b (bending direction, I = h·b³/12)",
+                                   0.0, 1.0, low_open=True)
+    beam_height_m: float = quantity(0.007, "m", "paper Table I: h", 0.0, 1.0, low_open=True)
+    inner_radius_m: float = quantity(0.019, "m", "paper Table I: r_i", 0.0, 1.0, low_open=True)
+    sensing_radius_m: float = quantity(0.030, "m", "paper Table I: l_s", 0.0, 1.0, low_open=True)
+    outer_radius_m: float = quantity(0.048, "m", "paper Sec. II: 96 mm diameter", 0.0, 1.0, low_open=True)
+    spoke_count: int = quantity(4, "1", "paper Sec. II: four spokes", 3, 16)
+    youngs_modulus_pa: float = quantity(
+        71.7e9, "Pa", "assumed: aluminium 7075-T6 (ASM data); the paper names no material, but its 114.5 g "
+        "for a 96 x 12 mm body fits aluminium, not steel", 1e9, 500e9)
+    poisson_ratio: float = quantity(0.33, "1", "assumed: aluminium 7075-T6 (ASM data)", 0.0, 0.5)
+    density_kg_m3: float = quantity(2810.0, "kg/m³", "assumed: aluminium 7075-T6 (ASM data)", 100.0, 25000.0)
+    shear_correction: float = quantity(5.0 / 6.0, "1", "paper Sec. II: κ = 5/6, rectangular section",
+                                       0.0, 1.0, low_open=True)
+    hub_bore_radius_m: float = quantity(
+        0.010, "m", "assumed: centring bore of the hub on the motor flange", 0.0, 1.0)
+    structural_damping_ratio: float = quantity(
+        0.02, "1", "assumed: damping ratio of the lever side ringing on the flexure, sqrt(K_t·J_lever); "
+        "2 % is typical of a bolted aluminium assembly, joints included", 0.0, 1.0)
+
+
+@dataclass(frozen=True)
+class FlangeParams:
+    """The gear's output flange (planet carrier) that the sensor hub bolts to."""
+
+    mass_kg: float = quantity(0.06, "kg", "assumed: aluminium planet carrier of a GIM8108", 0.0, 10.0,
+                              low_open=True)
+    radius_m: float = quantity(0.030, "m", "assumed: carrier radius, inside the 96 mm housing", 0.0, 1.0,
+                               low_open=True)
+
+
+@dataclass(frozen=True)
+class LeverParams:
+    """Lever arm bolted to the sensor's outer ring; its tip meets the load cell."""
+
+    length_m: float = quantity(0.1, "m", "paper Sec. V: 0.1 m lever arm", 0.0, 10.0, low_open=True)
+    width_m: float = quantity(0.02, "m", "assumed: aluminium bar section", 0.0, 1.0, low_open=True)
+    thickness_m: float = quantity(0.006, "m", "assumed: aluminium bar section", 0.0, 1.0, low_open=True)
+    density_kg_m3: float = quantity(2700.0, "kg/m³", "assumed: aluminium 6061-T6 (ASM data)", 100.0, 25000.0)
+    youngs_modulus_pa: float = quantity(68.9e9, "Pa", "assumed: aluminium 6061-T6 (ASM data)", 1e9, 500e9)
+
+
+@dataclass(frozen=True)
+class LoadCellParams:
+    """CAS SBA-50L S-beam load cell at the lever tip (locked fixture)."""
+
+    capacity_n: float = quantity(500.0, "N", "paper Sec. V: SBA-50L, 500 N", 0.0, INF, low_open=True)
+    full_scale_deflection_m: float = quantity(
+        3.0e-4, "m", "assumed: typical S-beam deflection at rated capacity (0.2-0.5 mm); the tip support is "
+        "this spring in series with the lever's bending", 0.0, 0.01, low_open=True)
+    damping_ratio: float = quantity(0.02, "1", "assumed: light damping of the tip support", 0.0, 1.0)
+
+
+@dataclass(frozen=True)
+class ThermalParams:
+    """Lumped two-node thermal network (sensor board, motor winding) in still air."""
+
+    ambient_c: float = quantity(25.0, "°C", "assumed: laboratory", -40.0, 85.0)
+    board_heat_capacity_j_per_k: float = quantity(
+        110.0, "J/K", "assumed: 114.5 g aluminium body (paper Table II) at 900 J/(kg·K) plus the PCB",
+        0.0, INF, low_open=True)
+    board_to_ambient_k_per_w: float = quantity(
+        5.5, "K/W", "assumed: natural convection h ≈ 10 W/(m²·K) over ~0.018 m² of sensor surface",
+        0.0, INF, low_open=True)
+    mcu_power_w: float = quantity(0.4, "W", "assumed: STM32H7 at full clock (paper Sec. II names the MCU)",
+                                  0.0, 10.0)
+    motor_heat_capacity_j_per_k: float = quantity(
+        230.0, "J/K", "assumed: ~0.38 kg motor at ~600 J/(kg·K)", 0.0, INF, low_open=True)
+    motor_to_ambient_k_per_w: float = quantity(2.5, "K/W", "assumed: 96 mm housing in still air",
+                                               0.0, INF, low_open=True)
+    motor_to_board_k_per_w: float = quantity(
+        5.0, "K/W", "assumed: conduction through the bolted hub; the paper notes motor heat reaches the "
+        "sensor (Sec. IV-C)", 0.0, INF, low_open=True)
+    tmp117_resolution_c: float = quantity(0.0078125, "°C", "TI TMP117 datasheet: 16-bit, 7.8125 m°C LSB",
+                                          0.0, 1.0, low_open=True)
+    update_period_s: float = quantity(
+        0.1, "s", "assumed: thermal time constants are minutes, so the network is advanced every 100 ms "
+        "with the mean copper loss (multi-rate)", 0.0, 60.0, low_open=True)
+
+
+@dataclass(frozen=True)
+class SimulationParams:
+    """Control rate and the rule that derives the physics step."""
+
+    control_period_s: float = quantity(1e-3, "s", "paper Sec. V: 1 kHz control cycle", 0.0, 1.0,
+                                       low_open=True)
+    max_omega_dt: float = quantity(
+        1.0, "rad", "rule: every mode of the lumped chain satisfies ω·h <= this. Semi-implicit Euler is "
+        "stable below 2 (margin 2) and its period error is ≈ (ω·h)²/24: <= 4.2 % for the stiffest (~1 kHz, "
+        "above the 500 Hz Nyquist rate of the loop), < 0.1 % for the control-relevant mode", 0.0, 1.9,
+        low_open=True)
+
+
+@dataclass(frozen=True)
+class TestbedParams:
+    """The whole rig: one instance of every group."""
+
+    motor: MotorParams = field(default_factory=MotorParams)
+    friction: GearFrictionParams = field(default_factory=GearFrictionParams)
+    backlash: BacklashParams = field(default_factory=BacklashParams)
+    flexure: FlexureParams = field(default_factory=FlexureParams)
+    flange: FlangeParams = field(default_factory=FlangeParams)
+    lever: LeverParams = field(default_factory=LeverParams)
+    loadcell: LoadCellParams = field(default_factory=LoadCellParams)
+    thermal: ThermalParams = field(default_factory=ThermalParams)
+    simulation: SimulationParams = field(default_factory=SimulationParams)
+
+    def __post_init__(self) -> None:
+        for group in dataclasses.fields(self):
+            _validate_group(group.name, getattr(self, group.name))
+        _validate_cross(self)
+
+    def replace(self, **groups: dict[str, Any]) -> "TestbedParams":
+        """A copy with fields overridden, e.g. ``p.replace(friction={"breakaway_torque_nm": 0.2})``."""
+        return from_dict(groups, base=self)
+
+    def rows(self) -> list[tuple[str, Any, str, str]]:
+        """(``group.field``, value, unit, source) for every parameter, in declaration order."""
+        out = []
+        for group in dataclasses.fields(self):
+            obj = getattr(self, group.name)
+            for f in dataclasses.fields(obj):
+                out.append((f"{group.name}.{f.name}", getattr(obj, f.name), f.metadata["unit"],
+                            f.metadata["source"]))
+        return out
+
+
+def _validate_group(name: str, obj: Any) -> None:
+    for f in dataclasses.fields(obj):
+        value = getattr(obj, f.name)
+        md = f.metadata
+        expected = int if f.type in (int, "int") else float
+        if isinstance(value, bool) or not isinstance(value, (int, float)) or (
+                expected is int and not isinstance(value, int)):
+            kind = "an integer" if expected is int else "a number"
+            raise ParameterError(f"{name}.{f.name} = {value!r}: expected {kind} "
+                                 f"[{f.metadata['unit']}]")
+        low, high = md["low"], md["high"]
+        below = value <= low if md["low_open"] else value < low
+        if not math.isfinite(value) or below or value > high:
+            bracket = "(" if md["low_open"] else "["
+            raise ParameterError(f"{name}.{f.name} = {value!r} {md['unit']} is out of its valid range "
+                                 f"{bracket}{low:g}, {high:g}]")
+
+
+def _validate_cross(p: TestbedParams) -> None:
+    fr, m = p.friction, p.motor
+    if fr.coulomb_torque_nm > fr.breakaway_torque_nm:
+        raise ParameterError(
+            f"friction.coulomb_torque_nm = {fr.coulomb_torque_nm} N·m must not exceed "
+            f"friction.breakaway_torque_nm = {fr.breakaway_torque_nm} N·m (valid range (0, breakaway])")
+    if fr.breakaway_torque_nm >= m.peak_torque_nm:
+        raise ParameterError(
+            f"friction.breakaway_torque_nm = {fr.breakaway_torque_nm} N·m is larger than the motor can "
+            f"overcome: valid range (0, motor.peak_torque_nm = {m.peak_torque_nm}) N·m")
+    if p.flexure.inner_radius_m + p.flexure.beam_length_m >= p.flexure.outer_radius_m:
+        raise ParameterError(
+            f"flexure.beam_length_m = {p.flexure.beam_length_m} m: r_i + l must stay inside "
+            f"outer_radius_m = {p.flexure.outer_radius_m} m (valid range (0, "
+            f"{p.flexure.outer_radius_m - p.flexure.inner_radius_m:g}) m)")
+    if p.flexure.hub_bore_radius_m >= p.flexure.inner_radius_m:
+        raise ParameterError(
+            f"flexure.hub_bore_radius_m = {p.flexure.hub_bore_radius_m} m must be below inner_radius_m "
+            f"(valid range [0, {p.flexure.inner_radius_m:g}) m)")
+    if p.motor.command_delay_s > 20 * p.simulation.control_period_s:
+        raise ParameterError(f"motor.command_delay_s = {p.motor.command_delay_s} s: valid range "
+                             f"[0, {20 * p.simulation.control_period_s:g}] s (20 control periods)")
+
+
+def from_dict(overrides: dict[str, Any], base: TestbedParams | None = None) -> TestbedParams:
+    """Apply ``{group: {field: value}}`` to ``base`` (defaults if None), validating every key and value."""
+    base = base or TestbedParams()
+    groups = {f.name: f for f in dataclasses.fields(TestbedParams)}
+    updated = {}
+    for gname, values in overrides.items():
+        if gname not in groups:
+            raise ParameterError(f"unknown parameter group [{gname}]; valid groups: {', '.join(groups)}")
+        if not isinstance(values, dict):
+            raise ParameterError(f"[{gname}] must be a table of fields, got {values!r}")
+        current = getattr(base, gname)
+        names = {f.name: f for f in dataclasses.fields(current)}
+        for key, value in values.items():
+            if key not in names:
+                raise ParameterError(f"unknown parameter {gname}.{key}; valid fields of [{gname}]: "
+                                     f"{', '.join(names)}")
+            if names[key].type in (float, "float") and isinstance(value, int) and not isinstance(value, bool):
+                values = {**values, key: float(value)}
+        try:
+            updated[gname] = dataclasses.replace(current, **values)
+        except TypeError as exc:  # pragma: no cover - guarded by the key check above
+            raise ParameterError(f"[{gname}]: {exc}") from exc
+    return dataclasses.replace(base, **updated)
+
+
+def load_params(path: str | Path | None = None) -> TestbedParams:
+    """The default parameter set, with the overrides of a TOML file if given (the file is only read)."""
+    if path is None:
+        return TestbedParams()
+    path = Path(path)
+    try:
+        with path.open("rb") as fh:
+            data = tomllib.load(fh)
+    except FileNotFoundError:
+        raise ParameterError(f"parameter file {path} does not exist") from None
+    except tomllib.TOMLDecodeError as exc:
+        raise ParameterError(f"parameter file {path} is not valid TOML: {exc}") from None
+    try:
+        return from_dict(data)
+    except ParameterError as exc:
+        raise ParameterError(f"{path}: {exc}") from None

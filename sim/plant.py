@@ -1,0 +1,227 @@
+"""The simulated testbed: MuJoCo model + data behind named accessors in SI units.
+
+One call to :meth:`Plant.step` is one control tick (``simulation.control_period_s``, 1 ms) made of
+``n_substeps`` physics steps. Nothing outside this module indexes ``qpos`` or ``act``.
+
+Sign convention: positive motor torque turns the lever positive; the flexure torque and the load-cell
+force are positive when the motor pushes the lever positive against the load cell.
+"""
+
+from __future__ import annotations
+
+import math
+
+import mujoco
+import numpy as np
+
+from models.gim8108_testbed.build import build_xml
+from models.gim8108_testbed.derived import derive, physics_timestep, stiffest_mode_rad_s
+from sim.params import TestbedParams
+from sim.thermal import ThermalState
+
+# Indices into the dcmotor's parameter arrays (MuJoCo 4.0: biasprm[3:6] = LuGre coulomb, static, stribeck).
+_LUGRE_COULOMB, _LUGRE_STATIC = 3, 4
+
+
+class SimulationDiverged(RuntimeError):
+    """The physics blew up; the message names the step, the stiffest mode and the likely cause."""
+
+
+class Plant:
+    """The GIM8108 + flexure + lever (+ load cell) testbed in one fixture.
+
+    Parameters
+    ----------
+    params : TestbedParams, optional
+        The parameter set (defaults if None).
+    fixture : {'locked', 'free'}
+        'locked': lever tip held by the load cell; 'free': the lever turns freely.
+    timestep_s : float, optional
+        Override the physics step [s] derived by the rule (for convergence studies); must divide the
+        control period.
+    """
+
+    def __init__(self, params: TestbedParams | None = None, fixture: str = "locked", *,
+                 timestep_s: float | None = None) -> None:
+        self.params = params or TestbedParams()
+        self.fixture = fixture
+        self.derived = derive(self.params)
+        self.model = mujoco.MjModel.from_xml_string(build_xml(self.params, fixture))
+        control_period = self.params.simulation.control_period_s
+        if timestep_s is None:
+            timestep_s, self.n_substeps = physics_timestep(self.params, fixture)
+        else:
+            self.n_substeps = round(control_period / timestep_s)
+            if self.n_substeps < 1 or not math.isclose(self.n_substeps * timestep_s, control_period,
+                                                       rel_tol=1e-9):
+                raise ValueError(f"timestep_s = {timestep_s} s must divide the control period "
+                                 f"{control_period} s into a whole number of steps")
+            self.model.opt.timestep = timestep_s
+        self.timestep_s = float(self.model.opt.timestep)
+        self._tick_s = self.n_substeps * self.timestep_s
+        self._half_step_s = 0.5 * self.timestep_s
+        self.omega_max_rad_s = stiffest_mode_rad_s(self.params, fixture)
+        self.data = mujoco.MjData(self.model)
+        m = self.model
+        jnt = {name: m.joint(name).qposadr[0] for name in ("motor", "backlash", "flexure")}
+        self._q_motor, self._q_backlash, self._q_flexure = jnt["motor"], jnt["backlash"], jnt["flexure"]
+        self._dof_motor = m.joint("motor").dofadr[0]
+        self._dof_flexure = m.joint("flexure").dofadr[0]
+        self._u_motor = m.actuator("motor").id
+        self._u_external = m.actuator("external").id
+        self._tendon = m.tendon("lever_angle").id
+        act_adr, act_num = m.actuator_actadr[self._u_motor], m.actuator_actnum[self._u_motor]
+        # dcmotor activations: [LuGre bristle deflection, armature current] (MuJoCo 4.0 order).
+        self._act_bristle, self._act_current = act_adr, act_adr + act_num - 1
+        self._gear = self.params.motor.gear_ratio
+        self._k_flexure = self.derived.flexure_stiffness_nm_per_rad
+        self._k_loadcell = float(np.ravel(m.tendon_stiffness[self._tendon])[0])
+        self._c_loadcell = float(np.ravel(m.tendon_damping[self._tendon])[0])
+        fr = self.params.friction
+        self._coulomb_m, self._static_m = fr.coulomb_torque_nm / self._gear, fr.breakaway_torque_nm / self._gear
+        self._load_coeff_m = fr.load_friction_coefficient / self._gear
+        self._biasprm = m.actuator_biasprm[self._u_motor]
+        th = self.params.thermal
+        self._thermal_ticks = max(1, round(th.update_period_s / control_period))
+        # Views into MjData, cached for the hot loop (mj_resetData keeps the buffers in place).
+        d = self.data
+        self._ctrl, self._qpos, self._qvel, self._act = d.ctrl, d.qpos, d.qvel, d.act
+        self.reset()
+
+    # ------------------------------------------------------------------ stepping
+    def reset(self, ambient_c: float | None = None) -> None:
+        """Back to rest at zero angles, thermal network at its idle steady state."""
+        mujoco.mj_resetData(self.model, self.data)
+        self._set_load_friction(0.0)
+        mujoco.mj_forward(self.model, self.data)
+        self.thermal = ThermalState(self.params.thermal, ambient_c)
+        self._current_sq_sum = 0.0
+        self._ticks = 0
+        self._tau_cmd = 0.0
+
+    def _set_load_friction(self, load_nm: float) -> None:
+        # Load-dependent gear friction (efficiency) is not native to MuJoCo: raise the LuGre Coulomb and
+        # static levels by (1 - η)·|transmitted torque|, once per control tick.
+        extra = self._load_coeff_m * load_nm
+        self._biasprm[_LUGRE_COULOMB] = self._coulomb_m + extra
+        self._biasprm[_LUGRE_STATIC] = self._static_m + extra
+
+    def step(self, tau_cmd_nm: float, tau_ext_nm: float = 0.0) -> None:
+        """Advance one control tick with a motor torque command [N·m, output side] and an external torque
+        on the lever [N·m]. The command is clipped to ±motor.peak_torque_nm by the actuator's range."""
+        d = self.data
+        self._tau_cmd = tau_cmd_nm
+        ctrl = self._ctrl
+        ctrl[self._u_motor] = tau_cmd_nm / self._gear
+        ctrl[self._u_external] = tau_ext_nm
+        self._set_load_friction(abs(self._k_flexure * self._qpos[self._q_flexure]))
+        t_expected = d.time + self._tick_s
+        mujoco.mj_step(self.model, d, self.n_substeps)
+        # MuJoCo resets the data (time -> 0) when accelerations blow up; a time short of the
+        # expected value or a non-finite state means the run diverged.
+        if d.time < t_expected - self._half_step_s or not math.isfinite(self._qvel[self._dof_motor]):
+            raise SimulationDiverged(self._divergence_message(t_expected))
+        current = self._act[self._act_current]
+        self._current_sq_sum += current * current
+        self._ticks += 1
+        if self._ticks % self._thermal_ticks == 0:
+            period = self._thermal_ticks * self.params.simulation.control_period_s
+            copper_w = self.params.motor.winding_resistance_ohm * self._current_sq_sum / self._thermal_ticks
+            self.thermal.advance(period, copper_w)
+            self._current_sq_sum = 0.0
+
+    def _divergence_message(self, t_expected: float) -> str:
+        omega_h = self.omega_max_rad_s * self.timestep_s
+        return (f"simulation diverged before t = {t_expected:.6f} s (fixture {self.fixture!r}). Likely cause: "
+                f"physics step h = {self.timestep_s:.3g} s is too large for the stiffest mode "
+                f"ω_max = {self.omega_max_rad_s:.4g} rad/s (ω_max·h = {omega_h:.3g}; semi-implicit Euler needs "
+                f"< 2). Check the stiffnesses (flexure K_t = {self._k_flexure:.4g} N·m/rad, load cell "
+                f"{self._k_loadcell:.4g} N·m/rad) and inertias, or leave the step to the rule "
+                f"(simulation.max_omega_dt = {self.params.simulation.max_omega_dt}).")
+
+    # ------------------------------------------------------------------ named accessors (SI)
+    @property
+    def time_s(self) -> float:
+        return float(self.data.time)
+
+    @property
+    def motor_angle_rad(self) -> float:
+        """Motor (encoder) angle referred to the output [rad]."""
+        return float(self.data.qpos[self._q_motor])
+
+    @property
+    def motor_velocity_rad_s(self) -> float:
+        """Motor velocity referred to the output [rad/s]."""
+        return float(self.data.qvel[self._dof_motor])
+
+    @property
+    def output_angle_rad(self) -> float:
+        """Absolute lever angle [rad]."""
+        return float(self.data.ten_length[self._tendon])
+
+    @property
+    def output_velocity_rad_s(self) -> float:
+        """Absolute lever velocity [rad/s]."""
+        return float(self.data.ten_velocity[self._tendon])
+
+    @property
+    def backlash_angle_rad(self) -> float:
+        """Hub angle relative to the gear, inside ±backlash.width_rad/2 [rad]."""
+        return float(self.data.qpos[self._q_backlash])
+
+    @property
+    def flexure_angle_rad(self) -> float:
+        """Twist of the flexure, hub minus lever [rad] (positive when it transmits positive torque)."""
+        return float(-self.data.qpos[self._q_flexure])
+
+    @property
+    def flexure_torque_nm(self) -> float:
+        """Torque the flexure transmits from hub to lever, K_t times its twist [N·m]."""
+        return self._k_flexure * self.flexure_angle_rad
+
+    @property
+    def loadcell_torque_nm(self) -> float:
+        """Torque the load cell resists at the lever tip, spring and damper [N·m] (0 in 'free')."""
+        d = self.data
+        return self._k_loadcell * d.ten_length[self._tendon] + self._c_loadcell * d.ten_velocity[self._tendon]
+
+    @property
+    def loadcell_force_n(self) -> float:
+        """Load-cell force at the lever tip [N]."""
+        return self.loadcell_torque_nm / self.params.lever.length_m
+
+    @property
+    def motor_current_a(self) -> float:
+        """Armature (q-axis) current [A]."""
+        return float(self.data.act[self._act_current])
+
+    @property
+    def current_torque_estimate_nm(self) -> float:
+        """The driver's torque estimate from its current sensor, N·K_t·i [N·m, output side]: blind to gear
+        friction and backlash."""
+        return self._gear * self.params.motor.torque_constant_nm_per_a * self.motor_current_a
+
+    @property
+    def torque_command_nm(self) -> float:
+        """The last motor torque command [N·m, output side], before clipping."""
+        return self._tau_cmd
+
+    @property
+    def bristle_deflection_rad(self) -> float:
+        """LuGre bristle deflection, motor side [rad]."""
+        return float(self.data.act[self._act_bristle])
+
+    @property
+    def board_temperature_c(self) -> float:
+        """True sensor-board temperature [°C]."""
+        return self.thermal.board_c
+
+    @property
+    def tmp117_temperature_c(self) -> float:
+        """Board temperature as the on-board TMP117 reports it [°C]."""
+        return self.thermal.tmp117_reading_c()
+
+    @property
+    def motor_temperature_c(self) -> float:
+        """Motor winding temperature [°C]."""
+        return self.thermal.motor_c

@@ -1,0 +1,84 @@
+"""Run logs: one format for simulated and measured runs (time series with units).
+
+The standard columns (names and units) are those a measured log can also carry; a simulated run adds the
+plant's true internal signals under further names, each with its unit.
+"""
+
+from __future__ import annotations
+
+import csv
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+STANDARD_UNITS: dict[str, str] = {
+    "time": "s",
+    "tau_cmd": "N·m",
+    "q": "rad",
+    "qd": "rad/s",
+    "q_motor": "rad",
+    "tau_sensor": "N·m",
+    "force_loadcell": "N",
+    "tau_ref": "N·m",
+    "temperature": "°C",
+    **{f"v{k}": "V" for k in range(1, 9)},
+}
+
+
+@dataclass(frozen=True)
+class RunLog:
+    """Equal-length 1-D columns sampled at ``time`` [s].
+
+    Attributes
+    ----------
+    columns : dict of str to ndarray
+        Signal name to samples. Standard names carry the units of ``STANDARD_UNITS``.
+    units : dict of str to str
+        Unit of every column.
+    meta : dict
+        What produced the run (fixture, seed, parameters, ...), JSON-serialisable.
+    """
+
+    columns: dict[str, np.ndarray]
+    units: dict[str, str]
+    meta: dict[str, Any] = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        if "time" not in self.columns:
+            raise ValueError("a run log needs a 'time' column [s]")
+        n = len(self.columns["time"])
+        for name, values in self.columns.items():
+            if np.ndim(values) != 1 or len(values) != n:
+                raise ValueError(f"column {name!r} has shape {np.shape(values)}; every column must be 1-D of "
+                                 f"length {n} like 'time'")
+            if name not in self.units:
+                raise ValueError(f"column {name!r} has no unit")
+            if name in STANDARD_UNITS and self.units[name] != STANDARD_UNITS[name]:
+                raise ValueError(f"column {name!r} is in {self.units[name]!r}; the format fixes "
+                                 f"{STANDARD_UNITS[name]!r}")
+
+    def __getitem__(self, name: str) -> np.ndarray:
+        try:
+            return self.columns[name]
+        except KeyError:
+            raise KeyError(f"no column {name!r}; columns: {', '.join(self.columns)}") from None
+
+    def __len__(self) -> int:
+        return len(self.columns["time"])
+
+    def to_csv(self, path: str | Path) -> Path:
+        """Write a CSV with a header row of column names (units are those of the format)."""
+        path = Path(path)
+        names = list(self.columns)
+        with path.open("w", newline="") as fh:
+            writer = csv.writer(fh)
+            writer.writerow(names)
+            writer.writerows(np.column_stack([self.columns[k] for k in names]).tolist())
+        return path
+
+    def to_dict(self) -> dict[str, Any]:
+        """JSON-ready: columns as lists, units, meta."""
+        return {"columns": {k: v.tolist() for k, v in self.columns.items()}, "units": dict(self.units),
+                "meta": self.meta}

@@ -53,9 +53,9 @@ def build_xml(p: TestbedParams, fixture: str) -> str:
   <!-- Euler: semi-implicit with implicit joint damping. implicit/implicitfast mis-integrate the dcmotor
        LuGre bristle damping while sliding (MuJoCo 4.0.0; see models/gim8108_testbed/README.md). -->
   <!-- PGS: exact for the single backlash-stop row and cheaper than Newton here. The rig has no contacts
-       by design (all geoms are visual), so collision detection is disabled. -->
+       by design (all geoms are visual) and is one kinematic tree: contacts and islands are disabled. -->
   <option timestep="{_f(h)}" integrator="Euler" solver="PGS">
-    <flag contact="disable"/>
+    <flag contact="disable" island="disable"/>
   </option>
   <default>
     <geom contype="0" conaffinity="0"/>

@@ -162,10 +162,17 @@ def stiffest_mode_rad_s(p: TestbedParams, fixture: str) -> float:
 def physics_timestep(p: TestbedParams, fixture: str) -> tuple[float, int]:
     """The physics step h [s] and substeps per control tick from the stated rule.
 
-    Rule: h = T_ctrl / n with the smallest integer n such that ω_max·h <= simulation.max_omega_dt, where
-    ω_max is the stiffest mode of the lumped chain in any backlash or friction state. The current loop and
-    the LuGre bristle state are integrated exactly by MuJoCo (exponential update), so they do not bound h.
+    Rule: h = T_ctrl / n with the smallest integer n such that
+      (1) ω_max·h <= simulation.max_omega_dt, ω_max the stiffest mode of the lumped chain in any backlash
+          or friction state (stability with margin for every mode), and
+      (2) h <= simulation.max_step_per_bristle_time · σ1/σ0 (accuracy of the presliding dynamics, whose
+          bristle state MuJoCo advances explicitly).
+    The current loop is integrated exactly by MuJoCo (exponential update), so it does not bound h.
     """
-    t_ctrl = p.simulation.control_period_s
-    n = max(1, math.ceil(t_ctrl * stiffest_mode_rad_s(p, fixture) / p.simulation.max_omega_dt))
+    s = p.simulation
+    t_ctrl = s.control_period_s
+    bristle_time_s = derive(p).presliding_damping_nms_per_rad / p.friction.presliding_stiffness_nm_per_rad
+    n_modes = math.ceil(t_ctrl * stiffest_mode_rad_s(p, fixture) / s.max_omega_dt)
+    n_bristle = math.ceil(t_ctrl / (s.max_step_per_bristle_time * bristle_time_s))
+    n = max(1, n_modes, n_bristle)
     return t_ctrl / n, n

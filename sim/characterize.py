@@ -1,0 +1,154 @@
+"""Quantities measured by simulating the plant, the way one would measure them on the rig."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import asdict, dataclass
+
+import mujoco
+import numpy as np
+
+from sim.params import TestbedParams
+from sim.plant import Plant
+
+# Paper Sec. V: breakaway = smallest command at which the motor velocity first exceeds a small threshold
+# for a sustained duration (> 100 ms) under a ramp.
+BREAKAWAY_SUSTAIN_S = 0.1
+BREAKAWAY_VELOCITY_THRESHOLD_RAD_S = 0.01  # output side; assumed: "a small threshold"
+BREAKAWAY_RAMP_NM_PER_S = 0.05  # slow enough that the 100 ms window adds only 0.005 N·m
+
+
+@dataclass(frozen=True)
+class Breakaway:
+    """Breakaway torque [N·m] measured on a ramp in the free fixture, and when it happened [s]."""
+
+    torque_nm: float
+    time_s: float
+    ramp_nm_per_s: float
+
+
+def measure_breakaway(params: TestbedParams | None = None, *, sign: float = 1.0,
+                      ramp_nm_per_s: float = BREAKAWAY_RAMP_NM_PER_S) -> Breakaway:
+    """Ramp the motor command from zero in the free fixture until the motor moves for > 100 ms."""
+    plant = Plant(params, "free")
+    p = plant.params
+    tick = p.simulation.control_period_s
+    sustain_ticks = round(BREAKAWAY_SUSTAIN_S / tick)
+    max_torque = min(p.motor.peak_torque_nm, 4.0 * p.friction.breakaway_torque_nm)
+    n = math.ceil(max_torque / ramp_nm_per_s / tick)
+    moving_since = None
+    for k in range(n):
+        tau = sign * ramp_nm_per_s * (k + 1) * tick
+        plant.step(tau)
+        if abs(plant.motor_velocity_rad_s) > BREAKAWAY_VELOCITY_THRESHOLD_RAD_S:
+            moving_since = k if moving_since is None else moving_since
+            if k - moving_since >= sustain_ticks:
+                return Breakaway(abs(sign * ramp_nm_per_s * (moving_since + 1) * tick),
+                                 (moving_since + 1) * tick, ramp_nm_per_s)
+        else:
+            moving_since = None
+    raise RuntimeError(f"no breakaway below {max_torque:.3g} N·m: the gear never moved on the ramp")
+
+
+@dataclass(frozen=True)
+class BacklashMeasurement:
+    """Dead band [rad] from the motor angle against the load-cell torque on both sides of a reversal."""
+
+    width_rad: float
+    compliance_rad_per_nm: float
+
+
+def measure_backlash(params: TestbedParams | None = None, *, amplitude_nm: float = 2.0,
+                     period_s: float = 4.0) -> BacklashMeasurement:
+    """Slow triangular torque reversal in the locked fixture.
+
+    With a stop closed, q_motor = τ_lc·(1/K_t + 1/k_lc) ± gap/2 whatever the gear friction (it acts between
+    gear and ground). Lines fitted to the loaded part of each branch (|τ_lc| in 30-90 % of the amplitude)
+    meet τ = 0 a gap apart.
+    """
+    plant = Plant(params, "locked")
+    tick = plant.params.simulation.control_period_s
+    t = np.arange(1, round(1.5 * period_s / tick) + 1) * tick
+    phase = (t / period_s) % 1.0
+    triangle = amplitude_nm * (1.0 - 4.0 * np.abs(phase - 0.5))  # -A at t=0, +A at T/2
+    q_motor, tau_lc = np.empty(len(t)), np.empty(len(t))
+    for k, tau in enumerate(triangle):
+        plant.step(tau)
+        q_motor[k], tau_lc[k] = plant.motor_angle_rad, plant.loadcell_torque_nm
+    settle = t > 0.25 * period_s  # skip the start-up from rest
+    fits = []
+    for side in (1.0, -1.0):
+        sel = settle & (side * tau_lc > 0.3 * amplitude_nm) & (side * tau_lc < 0.9 * amplitude_nm)
+        fits.append(np.polyfit(tau_lc[sel], q_motor[sel], 1))
+    (slope_pos, icpt_pos), (slope_neg, icpt_neg) = fits
+    return BacklashMeasurement(icpt_pos - icpt_neg, 0.5 * (slope_pos + slope_neg))
+
+
+@dataclass(frozen=True)
+class Mode:
+    """One oscillatory mode of the linearised plant."""
+
+    frequency_hz: float  # damped frequency Im(λ)/2π
+    natural_frequency_hz: float  # |λ|/2π
+    damping_ratio: float  # -Re(λ)/|λ|
+
+    def to_dict(self) -> dict[str, float]:
+        return asdict(self)
+
+
+def settle_under_preload(plant: Plant, preload_nm: float, duration_s: float = 0.5) -> None:
+    """Hold a constant motor torque until the plant is at rest (locked fixture: a closed backlash stop)."""
+    for _ in range(round(duration_s / plant.params.simulation.control_period_s)):
+        plant.step(preload_nm)
+
+
+def linearizable_plant(params: TestbedParams | None, fixture: str, preload_nm: float,
+                       timestep_s: float | None = None) -> Plant:
+    """A plant at rest under a preload, without the command delay: mjd_transitionFD does not support
+    delays, and a delay on the command does not change the transition of the state under a held command."""
+    params = (params or TestbedParams()).replace(motor={"command_delay_s": 0.0})
+    plant = Plant(params, fixture, timestep_s=timestep_s)
+    settle_under_preload(plant, preload_nm)
+    return plant
+
+
+def linearized_modes(plant: Plant, *, epsilon: float = 1e-7) -> list[Mode]:
+    """Oscillatory modes of the plant's discrete transition at its current state (mjd_transitionFD).
+
+    The per-physics-step transition matrix A (positions, velocities, activations) has eigenvalues μ; the
+    continuous equivalents are λ = ln(μ)/h. Modes are returned by ascending frequency. The plant must have
+    no command delay (see :func:`linearizable_plant`).
+    """
+    m, d = plant.model, plant.data
+    nx = 2 * m.nv + m.na
+    a = np.zeros((nx, nx))
+    mujoco.mjd_transitionFD(m, d, epsilon, True, a, None, None, None)
+    lam = np.log(np.linalg.eigvals(a).astype(complex)) / m.opt.timestep
+    modes = [Mode(float(z.imag / (2 * math.pi)), float(abs(z) / (2 * math.pi)), float(-z.real / abs(z)))
+             for z in lam if z.imag > 1e-6 * abs(z)]
+    return sorted(modes, key=lambda mode: mode.frequency_hz)
+
+
+def free_vibration_peak_hz(plant: Plant, *, duration_s: float = 2.0, kick_rad_s: float = 0.01,
+                           band_hz: tuple[float, float] = (20.0, 2000.0)) -> float:
+    """Kick the gear's velocity, record the flexure torque at every physics step, return the FFT peak [Hz].
+
+    The spectrum is zero-padded (8x) and the peak refined by a parabola through the three top bins.
+    """
+    m, d = plant.model, plant.data
+    d.qvel[m.joint("motor").dofadr[0]] += kick_rad_s
+    n = round(duration_s / m.opt.timestep)
+    twist = np.empty(n)
+    q_flex = m.joint("flexure").qposadr[0]
+    for k in range(n):
+        mujoco.mj_step(m, d)
+        twist[k] = d.qpos[q_flex]
+    twist -= twist.mean()
+    nfft = 8 * n
+    spectrum = np.abs(np.fft.rfft(twist * np.hanning(n), nfft))
+    freqs = np.fft.rfftfreq(nfft, m.opt.timestep)
+    band = (freqs >= band_hz[0]) & (freqs <= band_hz[1])
+    i = np.flatnonzero(band)[np.argmax(spectrum[band])]
+    y0, y1, y2 = np.log(spectrum[i - 1:i + 2])
+    shift = 0.5 * (y0 - y2) / (y0 - 2 * y1 + y2)
+    return float(freqs[i] + shift * (freqs[1] - freqs[0]))

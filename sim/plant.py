@@ -89,9 +89,25 @@ class Plant:
         self.reset()
 
     # ------------------------------------------------------------------ stepping
-    def reset(self, ambient_c: float | None = None) -> None:
-        """Back to rest at zero angles, thermal network at its idle steady state."""
+    def reset(self, ambient_c: float | None = None, backlash_side: int = 0) -> None:
+        """Back to rest, thermal network at its idle steady state.
+
+        Parameters
+        ----------
+        ambient_c : float, optional
+            Ambient temperature [°C] (``thermal.ambient_c`` if None).
+        backlash_side : {0, 1, -1}
+            0: hub centred in the dead band; +1 / -1: the dead band taken up as after a positive / negative
+            torque (the stop that positive / negative motor torque closes is in contact).
+        """
+        if backlash_side not in (0, 1, -1):
+            raise ValueError(f"backlash_side = {backlash_side!r}: valid values are 0, 1, -1")
         mujoco.mj_resetData(self.model, self.data)
+        # Positive motor torque drives the gear ahead of the hub: that stop is at backlash = -width/2. The gear
+        # turns by the half gap; hub and lever stay at zero absolute angle.
+        half_gap = 0.5 * backlash_side * self.params.backlash.width_rad
+        self._qpos[self._q_motor] = half_gap
+        self._qpos[self._q_backlash] = -half_gap
         self._set_load_friction(0.0)
         mujoco.mj_forward(self.model, self.data)
         self.thermal = ThermalState(self.params.thermal, ambient_c)

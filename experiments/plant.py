@@ -1,0 +1,115 @@
+"""Model card: every parameter with unit and source, and the derived and simulated quantities.
+
+    python -m experiments.plant [--params TOML] [--json PATH]
+"""
+
+from __future__ import annotations
+
+import argparse
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from experiments.common import add_params_arg, load_params_arg, write_json
+from models.gim8108_testbed.derived import FIXTURES, derive, lumped_modes_hz, physics_timestep
+from sim.characterize import linearizable_plant, linearized_modes, measure_backlash, measure_breakaway
+from sim.params import TestbedParams
+
+PAPER_FLEXURE_MODE_ESTIMATE_HZ = 5975.0  # paper Sec. II, sqrt(k_z/J_z)/2π
+PAPER_FLEXURE_MODE_FEA_HZ = 3407.0  # paper Sec. II and Table II, SolidWorks first mode
+LOCKED_PRELOAD_NM = 1.0  # closes the backlash for the locked fixture's linearisation
+
+
+@dataclass(frozen=True)
+class PlantCard:
+    """Parameters (value, unit, source) and derived quantities (value, unit) of a parameter set."""
+
+    parameters: dict[str, dict[str, Any]]
+    derived: dict[str, dict[str, Any]]
+    modes: dict[str, list[dict[str, float]]] = field(default_factory=dict)
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"parameters": self.parameters, "derived": self.derived, "modes": self.modes}
+
+
+def run_plant_card(params: TestbedParams | None = None) -> PlantCard:
+    """Compute the model card: closed forms, step rule, modes and simulated breakaway and backlash."""
+    p = params or TestbedParams()
+    d = derive(p)
+    derived: dict[str, dict[str, Any]] = {}
+
+    def put(name: str, value: float, unit: str) -> None:
+        derived[name] = {"value": float(value), "unit": unit}
+
+    put("flexure_stiffness", d.flexure_stiffness_nm_per_rad, "N·m/rad")
+    put("flexure_youngs_modulus", p.flexure.youngs_modulus_pa, "Pa")
+    put("flexure_shear_modulus", d.flexure_shear_modulus_pa, "Pa")
+    put("spoke_stiffness", d.spoke_stiffness_n_per_m, "N/m")
+    put("hub_inertia", d.hub_inertia_kgm2, "kg·m²")
+    put("flexure_mode", d.flexure_mode_hz, "Hz")
+    put("flexure_mode_paper_estimate", PAPER_FLEXURE_MODE_ESTIMATE_HZ, "Hz")
+    put("flexure_mode_paper_fea", PAPER_FLEXURE_MODE_FEA_HZ, "Hz")
+    put("reflected_rotor_inertia", d.reflected_rotor_inertia_kgm2, "kg·m²")
+    put("output_flange_hub_inertia", d.output_inertia_kgm2, "kg·m²")
+    put("lever_side_inertia", d.lever_side_inertia_kgm2, "kg·m²")
+    put("tip_support_stiffness", d.tip_support_stiffness_n_per_m, "N/m")
+    put("flexure_twist_per_torque", 1.0 / d.flexure_stiffness_nm_per_rad, "rad/(N·m)")
+    put("sensing_surface_displacement_at_25nm",
+        25.0 / d.flexure_stiffness_nm_per_rad * p.flexure.sensing_radius_m, "m")
+    modes: dict[str, list[dict[str, float]]] = {}
+    for fixture in FIXTURES:
+        h, n = physics_timestep(p, fixture)
+        put(f"physics_timestep_{fixture}", h, "s")
+        put(f"substeps_{fixture}", n, "1")
+        closed = fixture == "locked"
+        lumped = [f for f in lumped_modes_hz(p, fixture, closed, True) if f > 0]
+        for i, f in enumerate(lumped):
+            put(f"lumped_mode_{fixture}_{i + 1}", f, "Hz")
+        preload = LOCKED_PRELOAD_NM if closed else 0.0
+        modes[fixture] = [m.to_dict() for m in linearized_modes(linearizable_plant(p, fixture, preload))]
+    control = modes["locked"][0]
+    put("locked_control_mode_natural_frequency", control["natural_frequency_hz"], "Hz")
+    put("locked_control_mode_damping_ratio", control["damping_ratio"], "1")
+    put("breakaway_torque_measured", measure_breakaway(p).torque_nm, "N·m")
+    put("breakaway_torque_parameter", p.friction.breakaway_torque_nm, "N·m")
+    put("backlash_width_measured", measure_backlash(p).width_rad, "rad")
+    put("backlash_width_parameter", p.backlash.width_rad, "rad")
+    parameters = {name: {"value": value, "unit": unit, "source": source}
+                  for name, value, unit, source in p.rows()}
+    return PlantCard(parameters, derived, modes)
+
+
+def format_card(card: PlantCard) -> str:
+    """The card as text tables."""
+    lines = ["Parameters", f"{'name':44s} {'value':>12s}  {'unit':10s} source", "-" * 110]
+    for name, row in card.parameters.items():
+        lines.append(f"{name:44s} {row['value']:12.6g}  {row['unit']:10s} {row['source']}")
+    lines += ["", "Derived and simulated", f"{'quantity':44s} {'value':>12s}  unit", "-" * 70]
+    for name, row in card.derived.items():
+        lines.append(f"{name:44s} {row['value']:12.6g}  {row['unit']}")
+    lines += ["", "Linearised modes (mjd_transitionFD; locked under a 1 N·m preload, free at rest)"]
+    for fixture, modes in card.modes.items():
+        for m in modes:
+            lines.append(f"  {fixture:6s} f_n = {m['natural_frequency_hz']:8.1f} Hz   ζ = {m['damping_ratio']:.3f}")
+    d = card.derived
+    ratio_fea = d["flexure_mode"]["value"] / PAPER_FLEXURE_MODE_FEA_HZ
+    lines += ["", f"Flexure torsional mode sqrt(K_t/J_hub)/2π = {d['flexure_mode']['value']:.0f} Hz; paper: "
+              f"{PAPER_FLEXURE_MODE_ESTIMATE_HZ:.0f} Hz estimate, {PAPER_FLEXURE_MODE_FEA_HZ:.0f} Hz FEA "
+              f"(ratio to FEA {ratio_fea:.2f})"]
+    return "\n".join(lines)
+
+
+def main(argv: list[str] | None = None) -> None:
+    parser = argparse.ArgumentParser(description="Print the testbed's model card.")
+    add_params_arg(parser)
+    parser.add_argument("--json", type=Path, help="write the card as JSON to this path")
+    args = parser.parse_args(argv)
+    card = run_plant_card(load_params_arg(parser, args))
+    print(format_card(card))
+    if args.json:
+        write_json(args.json, card.to_dict())
+        print(f"\nwrote {args.json}")
+
+
+if __name__ == "__main__":
+    main()

@@ -85,7 +85,15 @@ class GearFrictionParams:
         "Wit et al. 1995 size sigma1 from sigma0 and the moving mass)", 0.0, 10.0, low_open=True)
     load_friction_coefficient: float = quantity(
         0.1, "1", "assumed: friction added per unit transmitted torque, 1 - η for a single planetary stage "
-        "of efficiency η ≈ 0.9; not native to MuJoCo, applied by sim.plant", 0.0, 1.0)
+        "of efficiency η ≈ 0.9; MuJoCo has no load-dependent friction, so sim.plant sets the gear joint's "
+        "frictionloss to this x |flexure torque| every tick", 0.0, 1.0)
+    load_friction_time_constant_s: float = quantity(
+        1.25e-4, "s", "tuned: solreffriction time constant of that frictionloss row, two physics steps (the "
+        "stiffest MuJoCo resolves stably); with load_friction_impedance it bounds the creep while stuck "
+        "(tests/test_plant_physics)", 0.0, 1.0, low_open=True)
+    load_friction_impedance: float = quantity(
+        0.9999, "1", "tuned: solimpfriction d0 = dwidth of that row, MuJoCo's maximum; (1-d)/d scales the "
+        "creep velocity while stuck", 0.9, 0.9999)
 
 
 @dataclass(frozen=True)
@@ -96,8 +104,9 @@ class BacklashParams:
         3.5e-3, "rad", "assumed: 0.2° total dead band, typical of low-cost single-stage planetary "
         "actuators; the paper reports backlash but no value (Sec. V)", 0.0, 0.2, low_open=True)
     stop_time_constant_s: float = quantity(
-        4.0e-4, "s", "tuned: solref time constant of the stops; >= 2 physics steps for stability, chosen "
-        "with stop_impedance so the stop penetrates < 10 % of the gap at 18 N·m (tests/test_plant_physics)",
+        1.25e-4, "s", "tuned: solref time constant of the stops, two physics steps (the stiffest MuJoCo "
+        "resolves stably); with stop_impedance the stop penetrates < 10 % of the gap at 18 N·m and < 60 % "
+        "in the hardest impacts of random commands (tests/test_plant_physics, test_plant_contract)",
         0.0, 1.0, low_open=True)
     stop_impedance: float = quantity(
         0.999, "1", "tuned: solimp d0 = dwidth of the stops; (1-d)/d sets the static penetration",

@@ -19,9 +19,6 @@ from models.gim8108_testbed.derived import derive, physics_timestep, stiffest_mo
 from sim.params import TestbedParams
 from sim.thermal import ThermalState
 
-# Indices into the dcmotor's parameter arrays (MuJoCo 4.0: biasprm[3:6] = LuGre coulomb, static, stribeck).
-_LUGRE_COULOMB, _LUGRE_STATIC = 3, 4
-
 
 class SimulationDiverged(RuntimeError):
     """The physics blew up; the message names the step, the stiffest mode and the likely cause."""
@@ -77,10 +74,8 @@ class Plant:
         self._k_flexure = self.derived.flexure_stiffness_nm_per_rad
         self._k_loadcell = float(np.ravel(m.tendon_stiffness[self._tendon])[0])
         self._c_loadcell = float(np.ravel(m.tendon_damping[self._tendon])[0])
-        fr = self.params.friction
-        self._coulomb_m, self._static_m = fr.coulomb_torque_nm / self._gear, fr.breakaway_torque_nm / self._gear
-        self._load_coeff_m = fr.load_friction_coefficient / self._gear
-        self._biasprm = m.actuator_biasprm[self._u_motor]
+        self._load_coeff = self.params.friction.load_friction_coefficient
+        self._frictionloss = m.dof_frictionloss
         th = self.params.thermal
         self._thermal_ticks = max(1, round(th.update_period_s / control_period))
         # Views into MjData, cached for the hot loop (mj_resetData keeps the buffers in place).
@@ -116,11 +111,11 @@ class Plant:
         self._tau_cmd = 0.0
 
     def _set_load_friction(self, load_nm: float) -> None:
-        # Load-dependent gear friction (efficiency) is not native to MuJoCo: raise the LuGre Coulomb and
-        # static levels by (1 - η)·|transmitted torque|, once per control tick.
-        extra = self._load_coeff_m * load_nm
-        self._biasprm[_LUGRE_COULOMB] = self._coulomb_m + extra
-        self._biasprm[_LUGRE_STATIC] = self._static_m + extra
+        # Load-dependent gear friction (efficiency) is not native to MuJoCo. It is the gear joint's
+        # frictionloss, (1 - η)·|transmitted torque|, set once per control tick: a stateless constraint row
+        # solved implicitly. (Modulating the LuGre levels instead makes its σ1·dz/dt term spike when the
+        # level drops while sliding, and the run diverges.)
+        self._frictionloss[self._dof_motor] = self._load_coeff * load_nm
 
     def step(self, tau_cmd_nm: float, tau_ext_nm: float = 0.0) -> None:
         """Advance one control tick with a motor torque command [N·m, output side] and an external torque

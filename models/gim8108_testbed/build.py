@@ -29,10 +29,11 @@ def build_xml(p: TestbedParams, fixture: str) -> str:
         raise ValueError(f"fixture = {fixture!r}: valid values are {FIXTURES}")
     d = derive(p)
     h, _ = physics_timestep(p, fixture)
-    if p.backlash.stop_time_constant_s < 2.0 * h:
-        raise ParameterError(
-            f"backlash.stop_time_constant_s = {p.backlash.stop_time_constant_s} s is below two physics steps; "
-            f"valid range [{2.0 * h:.3g}, 1] s for h = {h:.3g} s")
+    for name, value in (("backlash.stop_time_constant_s", p.backlash.stop_time_constant_s),
+                        ("friction.load_friction_time_constant_s", p.friction.load_friction_time_constant_s)):
+        if value < 2.0 * h * (1.0 - 1e-9):
+            raise ParameterError(f"{name} = {value} s is below two physics steps; valid range "
+                                 f"[{2.0 * h:.3g}, 1] s for h = {h:.3g} s")
     n = p.motor.gear_ratio
     fr, fl, lever = p.friction, p.flexure, p.lever
     locked = fixture == "locked"
@@ -73,7 +74,10 @@ def build_xml(p: TestbedParams, fixture: str) -> str:
         <!-- Output-referred angle of the gear side of the mesh. Its inertia is the rotor's reflected
              through the gear, N² J_rotor: set here rather than as actuator armature because MuJoCo needs a
              moving body with positive inertia (same dynamics). -->
-        <joint name="motor" type="hinge" axis="0 0 1"/>
+        <!-- frictionloss: the load-dependent gear friction, set every tick by sim.plant. -->
+        <joint name="motor" type="hinge" axis="0 0 1" frictionloss="0"
+               solreffriction="{_f(fr.load_friction_time_constant_s)} 1"
+               solimpfriction="{_f(fr.load_friction_impedance)} {_f(fr.load_friction_impedance)} 0.001 0.5 2"/>
         <inertial pos="0 0 0" mass="{_f(p.motor.rotor_mass_kg)}"
                   diaginertia="{_f(0.5 * d.reflected_rotor_inertia_kgm2)} {_f(0.5 * d.reflected_rotor_inertia_kgm2)} {_f(d.reflected_rotor_inertia_kgm2)}"/>
         <body name="output">

@@ -1,0 +1,77 @@
+"""The parameter set: units and sources everywhere, and clear errors for bad values."""
+
+import dataclasses
+
+import pytest
+
+from models.gim8108_testbed.build import build_xml
+from sim.params import ParameterError, TestbedParams, load_params
+
+
+def test_every_parameter_has_unit_source_and_a_default_inside_its_range():
+    """Each field carries a unit and a source; the defaults validate."""
+    p = TestbedParams()
+    rows = p.rows()
+    assert len(rows) > 40
+    for name, value, unit, source in rows:
+        assert unit, name
+        assert source.split(":")[0] in {"paper Sec. II", "paper Sec. V", "paper Table I", "assumed", "tuned",
+                                        "rule", "TI TMP117 datasheet"}, (name, source)
+
+
+def test_toml_override_applies_and_leaves_the_file_untouched(tmp_path):
+    """A TOML file overrides fields by [group] and is only read."""
+    path = tmp_path / "rig.toml"
+    text = "[friction]\nbreakaway_torque_nm = 0.2\n[lever]\nlength_m = 0.15\n"
+    path.write_text(text)
+    p = load_params(path)
+    assert p.friction.breakaway_torque_nm == 0.2
+    assert p.lever.length_m == 0.15
+    assert p.motor == TestbedParams().motor
+    assert path.read_text() == text
+
+
+@pytest.mark.parametrize("text, fragment", [
+    ("[friction]\nbreakaway_torqe_nm = 0.2\n", "unknown parameter friction.breakaway_torqe_nm"),
+    ("[gearbox]\nratio = 8\n", "unknown parameter group [gearbox]"),
+    ("[motor]\ngear_ratio = 'eight'\n", "motor.gear_ratio = 'eight': expected a number"),
+    ("[flexure]\nspoke_count = 4.5\n", "flexure.spoke_count = 4.5: expected an integer"),
+    ("[friction]\npresliding_stiffness_nm_per_rad = -10.0\n", "valid range (0, inf]"),
+    ("[motor]\nrotor_inertia_kgm2 = 0\n", "motor.rotor_inertia_kgm2 = 0.0 kg·m² is out of its valid range (0, 1]"),
+    ("[friction]\nbreakaway_torque_nm = 25.0\n", "larger than the motor can overcome"),
+    ("[friction]\ncoulomb_torque_nm = 0.2\n", "must not exceed friction.breakaway_torque_nm"),
+    ("[flexure]\nbeam_length_m = 0.04\n", "r_i + l must stay inside"),
+    ("motor = 3\n", "[motor] must be a table"),
+])
+def test_invalid_toml_is_rejected_naming_the_field(tmp_path, text, fragment):
+    """Unknown keys, wrong types and out-of-range values name the field, value and valid range."""
+    path = tmp_path / "bad.toml"
+    path.write_text(text)
+    with pytest.raises(ParameterError) as info:
+        load_params(path)
+    assert fragment in str(info.value)
+    assert str(path) in str(info.value)
+
+
+def test_missing_and_malformed_files_say_so(tmp_path):
+    """A missing or non-TOML file is a ParameterError naming the file."""
+    with pytest.raises(ParameterError, match="does not exist"):
+        load_params(tmp_path / "nope.toml")
+    bad = tmp_path / "bad.toml"
+    bad.write_text("[motor\n")
+    with pytest.raises(ParameterError, match="not valid TOML"):
+        load_params(bad)
+
+
+def test_stop_time_constant_below_two_physics_steps_is_rejected():
+    """The backlash stop's solref must be resolvable by the derived step."""
+    p = TestbedParams().replace(backlash={"stop_time_constant_s": 1e-5})
+    with pytest.raises(ParameterError, match="backlash.stop_time_constant_s"):
+        build_xml(p, "locked")
+
+
+def test_parameters_are_frozen():
+    """A parameter set cannot be changed in place (one source of truth)."""
+    p = TestbedParams()
+    with pytest.raises(dataclasses.FrozenInstanceError):
+        p.motor.gear_ratio = 9.0

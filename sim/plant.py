@@ -20,6 +20,22 @@ from sim.params import TestbedParams
 from sim.thermal import ThermalState
 
 
+# Signals a run records every tick (see read_signals): name -> unit. Standard run-log names where they exist.
+SIGNAL_UNITS: dict[str, str] = {
+    "tau_cmd": "N·m",  # motor torque command, output side
+    "q": "rad",  # absolute lever angle
+    "qd": "rad/s",
+    "q_motor": "rad",  # motor angle referred to the output
+    "qd_motor": "rad/s",
+    "force_loadcell": "N",
+    "temperature": "°C",  # TMP117 reading of the board temperature
+    "tau_flexure": "N·m",  # true torque through the flexure
+    "tau_current_estimate": "N·m",  # the driver's N·K_t·i
+    "current": "A",
+    "backlash_angle": "rad",
+}
+
+
 class SimulationDiverged(RuntimeError):
     """The physics blew up; the message names the step, the stiffest mode and the likely cause."""
 
@@ -75,6 +91,7 @@ class Plant:
         self._k_loadcell = float(np.ravel(m.tendon_stiffness[self._tendon])[0])
         self._c_loadcell = float(np.ravel(m.tendon_damping[self._tendon])[0])
         self._load_coeff = self.params.friction.load_friction_coefficient
+        self._current_to_torque = self._gear * self.params.motor.torque_constant_nm_per_a
         self._frictionloss = m.dof_frictionloss
         th = self.params.thermal
         self._thermal_ticks = max(1, round(th.update_period_s / control_period))
@@ -150,6 +167,17 @@ class Plant:
                 f"{self._k_loadcell:.4g} N·m/rad) and inertias, or leave the step to the rule "
                 f"(simulation.max_omega_dt = {self.params.simulation.max_omega_dt}).")
 
+    def read_signals(self, out: np.ndarray) -> None:
+        """Write the signals of ``SIGNAL_UNITS``, in its order, into ``out`` (one call per tick in a run)."""
+        d, qpos, qvel = self.data, self._qpos, self._qvel
+        lever = d.ten_length[self._tendon]
+        lever_v = d.ten_velocity[self._tendon]
+        current = self._act[self._act_current]
+        out[:] = (self._tau_cmd, lever, lever_v, qpos[self._q_motor], qvel[self._dof_motor],
+                  (self._k_loadcell * lever + self._c_loadcell * lever_v) / self.params.lever.length_m,
+                  self.thermal.tmp117_reading_c(), -self._k_flexure * qpos[self._q_flexure],
+                  self._current_to_torque * current, current, qpos[self._q_backlash])
+
     # ------------------------------------------------------------------ named accessors (SI)
     @property
     def time_s(self) -> float:
@@ -210,7 +238,7 @@ class Plant:
     def current_torque_estimate_nm(self) -> float:
         """The driver's torque estimate from its current sensor, N·K_t·i [N·m, output side]: blind to gear
         friction and backlash."""
-        return self._gear * self.params.motor.torque_constant_nm_per_a * self.motor_current_a
+        return self._current_to_torque * self.motor_current_a
 
     @property
     def torque_command_nm(self) -> float:

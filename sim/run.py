@@ -4,28 +4,13 @@ from __future__ import annotations
 
 import sys
 import time
-from collections.abc import Callable
 from typing import TextIO
 
 import numpy as np
 
-from sim.plant import Plant
+from sim.plant import SIGNAL_UNITS, Plant
 from sim.runlog import RunLog
 
-# Signals recorded every tick: column name -> (unit, accessor on the plant).
-RECORDED: dict[str, tuple[str, Callable[[Plant], float]]] = {
-    "tau_cmd": ("N·m", lambda p: p.torque_command_nm),
-    "q": ("rad", lambda p: p.output_angle_rad),
-    "qd": ("rad/s", lambda p: p.output_velocity_rad_s),
-    "q_motor": ("rad", lambda p: p.motor_angle_rad),
-    "qd_motor": ("rad/s", lambda p: p.motor_velocity_rad_s),
-    "force_loadcell": ("N", lambda p: p.loadcell_force_n),
-    "temperature": ("°C", lambda p: p.tmp117_temperature_c),
-    "tau_flexure": ("N·m", lambda p: p.flexure_torque_nm),
-    "tau_current_estimate": ("N·m", lambda p: p.current_torque_estimate_nm),
-    "current": ("A", lambda p: p.motor_current_a),
-    "backlash_angle": ("rad", lambda p: p.backlash_angle_rad),
-}
 PROGRESS_MIN_TICKS = 20_000  # report progress only on runs longer than 20 s of simulated time
 
 
@@ -67,7 +52,7 @@ def run_open_loop(plant: Plant, tau_cmd_nm: np.ndarray, tau_ext_nm: np.ndarray |
     Returns
     -------
     RunLog
-        ``time`` is the end of each tick [s]; columns are those of ``RECORDED`` plus ``tau_ext``.
+        ``time`` is the end of each tick [s]; columns are those of ``sim.plant.SIGNAL_UNITS`` plus ``tau_ext``.
     """
     tau_cmd_nm = np.asarray(tau_cmd_nm, dtype=float)
     n = len(tau_cmd_nm)
@@ -76,8 +61,7 @@ def run_open_loop(plant: Plant, tau_cmd_nm: np.ndarray, tau_ext_nm: np.ndarray |
         raise ValueError(f"tau_ext_nm has shape {tau_ext_nm.shape}; expected ({n},) like tau_cmd_nm")
     if not (np.isfinite(tau_cmd_nm).all() and np.isfinite(tau_ext_nm).all()):
         raise ValueError("tau_cmd_nm and tau_ext_nm must be finite")
-    names = list(RECORDED)
-    getters = [RECORDED[k][1] for k in names]
+    names = list(SIGNAL_UNITS)
     out = np.empty((n, len(names)))
     times = np.empty(n)
     bar = Progress("simulating", n, plant.params.simulation.control_period_s) if (
@@ -85,11 +69,11 @@ def run_open_loop(plant: Plant, tau_cmd_nm: np.ndarray, tau_ext_nm: np.ndarray |
     for k in range(n):
         plant.step(tau_cmd_nm[k], tau_ext_nm[k])
         times[k] = plant.time_s
-        out[k] = [g(plant) for g in getters]
+        plant.read_signals(out[k])
         if bar is not None and k % 1000 == 999:
             bar.update(k + 1)
     columns = {"time": times, **{name: out[:, i].copy() for i, name in enumerate(names)},
                "tau_ext": tau_ext_nm.copy()}
-    units = {"time": "s", **{k: RECORDED[k][0] for k in names}, "tau_ext": "N·m"}
+    units = {"time": "s", **SIGNAL_UNITS, "tau_ext": "N·m"}
     return RunLog(columns, units, {"fixture": plant.fixture, "physics_timestep_s": plant.timestep_s,
                                    "substeps": plant.n_substeps, **(meta or {})})

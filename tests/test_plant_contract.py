@@ -9,7 +9,7 @@ import pytest
 from models.gim8108_testbed.build import build_xml, reference_xml_path
 from models.gim8108_testbed.derived import FIXTURES, derive, physics_timestep
 from sim.params import TestbedParams
-from sim.plant import Plant, SimulationDiverged
+from sim.plant import SIGNAL_UNITS, Plant, SimulationDiverged
 from sim.run import run_open_loop
 from sim.runlog import STANDARD_UNITS, RunLog
 from sim.thermal import ThermalState
@@ -151,3 +151,17 @@ def test_copper_losses_warm_the_board_during_a_run():
         plant.step(P.motor.peak_torque_nm)
     assert plant.motor_temperature_c > plant.board_temperature_c > before
     assert math.isfinite(plant.tmp117_temperature_c)
+
+
+def test_recorded_signals_equal_the_named_accessors():
+    """read_signals (the fast path of a run) returns what the named accessors return."""
+    plant = Plant(P, "locked")
+    for _ in range(30):
+        plant.step(2.0, 0.5)
+    row = np.empty(len(SIGNAL_UNITS))
+    plant.read_signals(row)
+    expected = [plant.torque_command_nm, plant.output_angle_rad, plant.output_velocity_rad_s,
+                plant.motor_angle_rad, plant.motor_velocity_rad_s, plant.loadcell_force_n,
+                plant.tmp117_temperature_c, plant.flexure_torque_nm, plant.current_torque_estimate_nm,
+                plant.motor_current_a, plant.backlash_angle_rad]
+    assert row == pytest.approx(expected, rel=1e-12, abs=1e-15)

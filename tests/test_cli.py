@@ -1,0 +1,55 @@
+"""Every command line runs in a short mode and writes what it promises."""
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def run(*args: str) -> subprocess.CompletedProcess:
+    return subprocess.run([sys.executable, "-m", *args], cwd=ROOT, capture_output=True, text=True, timeout=300)
+
+
+def test_plant_card_prints_the_tables_and_writes_the_json(tmp_path):
+    """experiments.plant: parameter table, derived quantities, and the JSON keys the issue fixes."""
+    out = tmp_path / "card.json"
+    result = run("experiments.plant", "--json", str(out))
+    assert result.returncode == 0, result.stderr
+    assert "flexure_stiffness" in result.stdout and "paper: 5975 Hz estimate, 3407 Hz FEA" in result.stdout
+    card = json.loads(out.read_text())
+    assert set(card["parameters"]["friction.breakaway_torque_nm"]) == {"value", "unit", "source"}
+    for key, unit in [("flexure_stiffness", "N·m/rad"), ("flexure_youngs_modulus", "Pa"),
+                      ("flexure_shear_modulus", "Pa"), ("breakaway_torque_measured", "N·m"),
+                      ("backlash_width_measured", "rad")]:
+        assert card["derived"][key]["unit"] == unit
+        assert card["derived"][key]["value"] > 0
+
+
+def test_plant_card_rejects_a_bad_parameter_file_naming_the_field(tmp_path):
+    """--params with an out-of-range value exits with status 2 and names the field and the range."""
+    bad = tmp_path / "bad.toml"
+    bad.write_text("[flexure]\nyoungs_modulus_pa = -1.0\n")
+    result = run("experiments.plant", "--params", str(bad))
+    assert result.returncode == 2
+    assert "flexure.youngs_modulus_pa = -1.0 Pa is out of its valid range" in result.stderr
+
+
+def test_open_loop_step_short_run_prints_paper_beside_simulation(tmp_path):
+    """experiments.open_loop_step in a short mode: table with the paper's fractions, JSON and a figure."""
+    result = run("experiments.open_loop_step", "--duration", "0.2", "--json", str(tmp_path / "r.json"),
+                 "--plot", str(tmp_path))
+    assert result.returncode == 0, result.stderr
+    assert "paper" in result.stdout and "30%" in result.stdout
+    data = json.loads((tmp_path / "r.json").read_text())
+    assert [s["command_nm"] for s in data["steps"]] == pytest.approx([0.05, 0.1, 0.2])
+    assert (tmp_path / "open_loop_step.png").stat().st_size > 10_000
+
+
+def test_open_loop_step_refuses_a_non_positive_duration():
+    """--duration 0 is a usage error naming the flag."""
+    result = run("experiments.open_loop_step", "--duration", "0")
+    assert result.returncode == 2 and "--duration" in result.stderr

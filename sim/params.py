@@ -199,6 +199,57 @@ class ThermalParams:
 
 
 @dataclass(frozen=True)
+class PhotoReflectorParams:
+    """Eight Vishay TCRT1000 photo-reflectors on the flexure's reflective surface, their ADC and the
+    references of the calibration rig (paper Secs. II-IV). Per-channel values of one sensor unit are drawn
+    from the ranges below with ``unit_seed`` (a manufactured unit), so a seed is a sensor."""
+
+    unit_seed: int = quantity(0, "1", "assumed: which manufactured unit; per-channel spreads are drawn with it",
+                              0, 2**31 - 1)
+    sensitivity_min_v_per_m: float = quantity(
+        973.0, "V/m", "paper Sec. IV-B: 0.024 V/(N·m) (0.6 V at 25 N·m) at the default K_t = 1217 N·m/rad and "
+        "l_s = 30 mm: 0.024·K_t/l_s", 0.0, INF, low_open=True)
+    sensitivity_max_v_per_m: float = quantity(
+        1622.0, "V/m", "paper Sec. IV-B: 0.04 V/(N·m) (1 V at 25 N·m), converted as above", 0.0, INF,
+        low_open=True)
+    quadratic_fraction_max: float = quantity(
+        0.04, "1", "assumed: |quadratic term| up to 4 % of the linear one at the 25 N·m calibration span; the "
+        "paper fits x³, x², x per channel (Eq. 10), so the response is visibly nonlinear", 0.0, 0.5)
+    cubic_fraction_max: float = quantity(
+        0.01, "1", "assumed: |cubic term| up to 1 % of the linear one at the calibration span", 0.0, 0.5)
+    operating_point_v: float = quantity(
+        1.65, "V", "assumed: mid-range of the 3.3 V ADC, set by the LED and collector resistors", 0.0, 3.3)
+    operating_point_spread_v: float = quantity(
+        0.15, "V", "assumed: unit-to-unit spread of the operating point (mounting gap tolerance)", 0.0, 1.0)
+    noise_min_v: float = quantity(
+        4.0e-4, "V", "tuned: quietest channel's white-noise std; the 4x spread to noise_max_v makes the "
+        "LS/QP resolution ratio of the paper (Sec. IV-B) possible", 0.0, 1.0)
+    noise_max_v: float = quantity(1.6e-3, "V", "tuned: noisiest channel's white-noise std", 0.0, 1.0)
+    hysteresis_twist_rad: float = quantity(
+        4.5e-5, "rad", "tuned: half-width of the play in the flexure's bolted joints seen by all channels, "
+        "0.055 N·m at K_t; the paper's hysteresis is 0.139 % FS (Table III)", 0.0, 0.01)
+    crosstalk_v_per_nm: float = quantity(
+        2.4e-3, "V/(N·m)", "paper Sec. IV-B: about 0.06 V per channel at 25 N·m of T_x or T_y", 0.0, 1.0)
+    crosstalk_spread: float = quantity(
+        0.3, "1", "assumed: relative channel-to-channel spread of the tilt response", 0.0, 1.0)
+    optical_tempco_per_k: float = quantity(
+        -4.0e-3, "1/K", "assumed: IR LED output falls ~0.4 %/K (TCRT1000-class emitters); scales each channel's "
+        "signal above its dark level", -0.1, 0.1)
+    optical_tempco_spread_per_k: float = quantity(
+        2.0e-4, "1/K", "assumed: channel-to-channel spread of that coefficient", 0.0, 0.1)
+    reference_temperature_c: float = quantity(25.0, "°C", "assumed: calibration temperature", -40.0, 85.0)
+    bandwidth_hz: float = quantity(5000.0, "Hz", "paper Table II: rise-time-limited bandwidth ~5 kHz",
+                                   0.0, INF, low_open=True)
+    adc_bits: int = quantity(16, "1", "paper Sec. II: 16-bit ADC", 8, 32)
+    adc_reference_v: float = quantity(3.3, "V", "paper Sec. IV-B: 3.3 V referenced ADC", 0.0, 10.0,
+                                      low_open=True)
+    reference_resolution_nm: float = quantity(
+        7.0 / 748.0, "N·m", "paper Sec. IV-A: ATI MINI85 T_z resolution 7/748 N·m", 0.0, 1.0, low_open=True)
+    reference_noise_nm: float = quantity(
+        4.7e-3, "N·m", "assumed: MINI85 noise std of half its resolution", 0.0, 1.0)
+
+
+@dataclass(frozen=True)
 class SimulationParams:
     """Control rate and the rule that derives the physics step."""
 
@@ -228,6 +279,7 @@ class TestbedParams:
     lever: LeverParams = field(default_factory=LeverParams)
     loadcell: LoadCellParams = field(default_factory=LoadCellParams)
     thermal: ThermalParams = field(default_factory=ThermalParams)
+    photoreflector: PhotoReflectorParams = field(default_factory=PhotoReflectorParams)
     simulation: SimulationParams = field(default_factory=SimulationParams)
 
     def __post_init__(self) -> None:
@@ -287,6 +339,12 @@ def _validate_cross(p: TestbedParams) -> None:
         raise ParameterError(
             f"flexure.hub_bore_radius_m = {p.flexure.hub_bore_radius_m} m must be below inner_radius_m "
             f"(valid range [0, {p.flexure.inner_radius_m:g}) m)")
+    pr = p.photoreflector
+    for low, high, unit in (("sensitivity_min_v_per_m", "sensitivity_max_v_per_m", "V/m"),
+                            ("noise_min_v", "noise_max_v", "V")):
+        if getattr(pr, low) > getattr(pr, high):
+            raise ParameterError(f"photoreflector.{low} = {getattr(pr, low)} {unit} must not exceed "
+                                 f"photoreflector.{high} = {getattr(pr, high)} {unit}")
     if p.motor.command_delay_s > 20 * p.simulation.control_period_s:
         raise ParameterError(f"motor.command_delay_s = {p.motor.command_delay_s} s: valid range "
                              f"[0, {20 * p.simulation.control_period_s:g}] s (20 control periods)")

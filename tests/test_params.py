@@ -15,8 +15,9 @@ def test_every_parameter_has_unit_source_and_a_default_inside_its_range():
     assert len(rows) > 40
     for name, value, unit, source in rows:
         assert unit, name
-        assert source.split(":")[0] in {"paper Sec. II", "paper Sec. V", "paper Table I", "assumed", "tuned",
-                                        "rule", "TI TMP117 datasheet"}, (name, source)
+        kind = source.split(":")[0]
+        assert kind.startswith("paper ") or kind in {"assumed", "tuned", "rule", "TI TMP117 datasheet"}, (
+            name, source)
 
 
 def test_toml_override_applies_and_leaves_the_file_untouched(tmp_path):

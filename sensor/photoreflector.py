@@ -1,0 +1,173 @@
+"""The eight-channel photo-reflector array (paper Secs. II-IV): twist, moments and temperature to ADC volts.
+
+Written in Python because MuJoCo has no optical sensor. Channel k sits in direction φ_j = j·π/2
+(j = k // 2: +x, +y, -x, -y) at the sensing radius l_s. The two channels of a direction face the reflective
+surface on opposite sides of its tooth, so a positive twist closes one gap and opens the other (signs +1, -1).
+With δ = l_s · play(θ) the surface displacement [m] under the flexure twist θ:
+
+    V_k = g_k(T) · (V0_k + S_k x + Q_k x² + C_k x³) + X_k·(T_x sin φ_j - T_y cos φ_j) + n_k,   x = s_k δ
+    g_k(T) = exp(γ_k (T - T_ref))                         (emitter output and detector gain with temperature)
+
+then a first-order sensing chain of the rated bandwidth and the ADC (``adc_bits`` over ``adc_reference_v``).
+``play`` is the hysteresis of the flexure's bolted joints (a play operator of half-width
+``hysteresis_twist_rad``), seen by all channels alike. Per-channel constants of one unit are drawn from the
+parameter ranges with ``unit_seed``; noise is drawn from the run's seed.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from models.gim8108_testbed.derived import derive
+from sim.params import TestbedParams
+
+CHANNELS = 8
+CALIBRATION_SPAN_NM = 25.0  # paper Sec. IV-B: calibration range ±25 N·m; the nonlinearity fractions refer to it
+
+
+@dataclass(frozen=True)
+class SensorUnit:
+    """Per-channel constants of one manufactured sensor (arrays of shape (8,))."""
+
+    signs: np.ndarray  # ±1: a positive twist closes (+1) or opens (-1) the channel's gap
+    angles_rad: np.ndarray  # direction of the channel, φ
+    sensitivity_v_per_m: np.ndarray  # S_k
+    quadratic_v_per_m2: np.ndarray  # Q_k
+    cubic_v_per_m3: np.ndarray  # C_k
+    operating_point_v: np.ndarray  # V0_k
+    noise_v: np.ndarray  # white-noise std
+    crosstalk_v_per_nm: np.ndarray  # X_k
+    tempco_per_k: np.ndarray  # γ_k
+
+
+def draw_unit(params: TestbedParams) -> SensorUnit:
+    """The sensor unit selected by ``photoreflector.unit_seed``."""
+    pr = params.photoreflector
+    rng = np.random.default_rng(pr.unit_seed)
+    span_m = params.flexure.sensing_radius_m * CALIBRATION_SPAN_NM / derive(params).flexure_stiffness_nm_per_rad
+    sens = rng.uniform(pr.sensitivity_min_v_per_m, pr.sensitivity_max_v_per_m, CHANNELS)
+    quad = rng.uniform(-1.0, 1.0, CHANNELS) * pr.quadratic_fraction_max * sens / span_m
+    cubic = rng.uniform(-1.0, 1.0, CHANNELS) * pr.cubic_fraction_max * sens / span_m**2
+    v0 = pr.operating_point_v + rng.uniform(-1.0, 1.0, CHANNELS) * pr.operating_point_spread_v
+    # noise levels log-uniformly between the quietest and the noisiest channel, both ends present
+    levels = np.exp(np.linspace(math.log(pr.noise_min_v or 1e-12), math.log(pr.noise_max_v or 1e-12), CHANNELS))
+    noise = rng.permutation(levels) if pr.noise_max_v > 0 else np.zeros(CHANNELS)
+    cross = pr.crosstalk_v_per_nm * (1.0 + pr.crosstalk_spread * rng.uniform(-1.0, 1.0, CHANNELS))
+    tempco = pr.optical_tempco_per_k + pr.optical_tempco_spread_per_k * rng.uniform(-1.0, 1.0, CHANNELS)
+    return SensorUnit(
+        signs=np.tile([1.0, -1.0], CHANNELS // 2),
+        angles_rad=np.repeat(np.arange(CHANNELS // 2) * (math.pi / 2), 2),
+        sensitivity_v_per_m=sens, quadratic_v_per_m2=quad, cubic_v_per_m3=cubic, operating_point_v=v0,
+        noise_v=noise, crosstalk_v_per_nm=cross, tempco_per_k=tempco)
+
+
+def play_operator(x: np.ndarray, half_width: float, initial: float = 0.0) -> np.ndarray:
+    """Backlash (play) hysteresis: y follows x but only once x has moved half_width past it."""
+    y = np.empty_like(x)
+    state = initial
+    for i, xi in enumerate(x):
+        state = min(max(state, xi - half_width), xi + half_width)
+        y[i] = state
+    return y
+
+
+def _as_series(name: str, value: np.ndarray | float, n: int) -> np.ndarray:
+    arr = np.broadcast_to(np.asarray(value, dtype=float), (n,)) if np.ndim(value) == 0 else np.asarray(value, float)
+    if arr.shape != (n,):
+        raise ValueError(f"{name} has shape {arr.shape}; expected ({n},) like twist_rad, or a scalar")
+    if not np.isfinite(arr).all():
+        raise ValueError(f"{name} has non-finite values at samples {np.flatnonzero(~np.isfinite(arr))[:5].tolist()}")
+    return arr
+
+
+class PhotoReflectorArray:
+    """One sensor unit read at a fixed sample period.
+
+    Parameters
+    ----------
+    params : TestbedParams
+        ``photoreflector`` and ``flexure`` groups are used.
+    seed : int
+        Seed of the noise of this run (the unit itself is ``photoreflector.unit_seed``).
+    sample_period_s : float, optional
+        ADC sample period [s] (the control period by default).
+    """
+
+    def __init__(self, params: TestbedParams | None = None, seed: int = 0,
+                 sample_period_s: float | None = None) -> None:
+        self.params = params or TestbedParams()
+        self.unit = draw_unit(self.params)
+        self.sample_period_s = sample_period_s or self.params.simulation.control_period_s
+        pr = self.params.photoreflector
+        self._rng = np.random.default_rng(seed)
+        self._alpha = math.exp(-2.0 * math.pi * pr.bandwidth_hz * self.sample_period_s)
+        self._lsb_v = pr.adc_reference_v / (2**pr.adc_bits - 1)
+        self._play_state = 0.0
+        self._filter_state: np.ndarray | None = None
+
+    @property
+    def lsb_v(self) -> float:
+        """ADC step [V]."""
+        return self._lsb_v
+
+    def ideal_voltages(self, twist_rad: np.ndarray, tx_nm=0.0, ty_nm=0.0, temperature_c=None) -> np.ndarray:
+        """Noise-free, unfiltered, unquantised channel voltages (N, 8) [V]; no hysteresis state is kept."""
+        twist = np.atleast_1d(np.asarray(twist_rad, dtype=float))
+        return self._analog(twist, twist, tx_nm, ty_nm, temperature_c)
+
+    def _analog(self, twist: np.ndarray, played: np.ndarray, tx_nm, ty_nm, temperature_c) -> np.ndarray:
+        n = len(twist)
+        pr, u = self.params.photoreflector, self.unit
+        tx = _as_series("tx_nm", tx_nm, n)
+        ty = _as_series("ty_nm", ty_nm, n)
+        temp = _as_series("temperature_c", pr.reference_temperature_c if temperature_c is None else temperature_c, n)
+        x = self.params.flexure.sensing_radius_m * played[:, None] * u.signs[None, :]
+        optical = u.operating_point_v + x * (u.sensitivity_v_per_m + x * (u.quadratic_v_per_m2 + x * u.cubic_v_per_m3))
+        gain = np.exp(u.tempco_per_k[None, :] * (temp[:, None] - pr.reference_temperature_c))
+        tilt = tx[:, None] * np.sin(u.angles_rad) - ty[:, None] * np.cos(u.angles_rad)
+        return gain * optical + u.crosstalk_v_per_nm * tilt
+
+    def read(self, twist_rad: np.ndarray | float, tx_nm=0.0, ty_nm=0.0, temperature_c=None) -> np.ndarray:
+        """Channel voltages as the ADC reports them, (N, 8) [V], for consecutive samples (state carries over).
+
+        Parameters
+        ----------
+        twist_rad : (N,) array or float
+            Flexure twist, hub minus outer ring [rad] (``Plant.flexure_angle_rad``).
+        tx_nm, ty_nm : (N,) array or float
+            Off-axis moments on the sensor [N·m].
+        temperature_c : (N,) array or float, optional
+            Board temperature [°C] (the calibration temperature if None).
+        """
+        twist = np.atleast_1d(np.asarray(twist_rad, dtype=float))
+        _as_series("twist_rad", twist, len(twist))
+        played = play_operator(twist, self.params.photoreflector.hysteresis_twist_rad, self._play_state)
+        self._play_state = float(played[-1])
+        v = self._analog(twist, played, tx_nm, ty_nm, temperature_c)
+        v = v + self._rng.standard_normal(v.shape) * self.unit.noise_v
+        v = self._filter(v)
+        counts = np.clip(np.rint(v / self._lsb_v), 0, 2**self.params.photoreflector.adc_bits - 1)
+        return counts * self._lsb_v
+
+    def _filter(self, v: np.ndarray) -> np.ndarray:
+        """First-order sensing chain, exact for a signal held over each sample period."""
+        if self._alpha < 1e-12:  # the chain settles within a sample: nothing to carry
+            self._filter_state = v[-1].copy()
+            return v
+        out = np.empty_like(v)
+        state = v[0] if self._filter_state is None else self._filter_state
+        for i in range(len(v)):
+            state = self._alpha * state + (1.0 - self._alpha) * v[i]
+            out[i] = state
+        self._filter_state = state
+        return out
+
+
+def reference_torque(tau_nm: np.ndarray, params: TestbedParams, rng: np.random.Generator) -> np.ndarray:
+    """The ATI MINI85 reading of a torque [N·m]: white noise, quantised to its resolution."""
+    pr = params.photoreflector
+    noisy = np.asarray(tau_nm, dtype=float) + rng.standard_normal(np.shape(tau_nm)) * pr.reference_noise_nm
+    return np.rint(noisy / pr.reference_resolution_nm) * pr.reference_resolution_nm

@@ -1,0 +1,134 @@
+"""The photo-reflector array against the paper's numbers and its own definitions."""
+
+import numpy as np
+import pytest
+
+from models.gim8108_testbed.derived import derive
+from sensor.photoreflector import CHANNELS, PhotoReflectorArray, draw_unit, play_operator, reference_torque
+from sim.params import TestbedParams
+
+P = TestbedParams()
+K_T = derive(P).flexure_stiffness_nm_per_rad
+
+
+def twist(tau_nm):
+    return np.asarray(tau_nm, dtype=float) / K_T
+
+
+@pytest.mark.parametrize("unit_seed", [0, 1, 2, 3])
+def test_channel_sensitivities_are_the_papers_at_the_operating_point(unit_seed):
+    """dV/dT_z at zero load lies in 0.024-0.04 V/(N·m) for every channel (paper Sec. IV-B)."""
+    p = P.replace(photoreflector={"unit_seed": unit_seed})
+    sensor = PhotoReflectorArray(p)
+    dtau = 1e-3
+    slope = (sensor.ideal_voltages(twist([dtau]))[0] - sensor.ideal_voltages(twist([-dtau]))[0]) / (2 * dtau)
+    assert np.all(np.abs(slope) >= 0.024 * (1 - 1e-3)) and np.all(np.abs(slope) <= 0.040 * (1 + 1e-3))
+
+
+def test_a_positive_twist_raises_one_channel_of_each_pair_and_lowers_the_other():
+    """Signs as the geometry gives them: the two channels of a direction move in opposite senses."""
+    v = PhotoReflectorArray(P).ideal_voltages(twist([0.0, 10.0]))
+    change = v[1] - v[0]
+    assert np.all(change[0::2] > 0) and np.all(change[1::2] < 0)
+
+
+def test_the_voltage_swing_at_25_nm_is_the_papers_and_visibly_nonlinear():
+    """|ΔV| at ±25 N·m is about 0.6-1 V per channel (paper) and the two sides differ (x², x³ terms)."""
+    v = PhotoReflectorArray(P).ideal_voltages(twist([-25.0, 0.0, 25.0]))
+    up, down = np.abs(v[2] - v[1]), np.abs(v[1] - v[0])
+    pr = P.photoreflector
+    slack = 1 + pr.quadratic_fraction_max + pr.cubic_fraction_max
+    assert np.all(up > 0.6 / slack) and np.all(up < 1.0 * slack)
+    assert np.max(np.abs(up - down) / (up + down)) > 0.005
+
+
+def test_a_two_volt_swing_is_the_papers_39718_counts():
+    """2 V on a 16-bit, 3.3 V-referenced ADC is 39,718 counts (paper Sec. IV-B)."""
+    assert 2.0 / PhotoReflectorArray(P).lsb_v == pytest.approx(39718, abs=1)
+
+
+def test_readings_are_adc_quantised_and_noise_has_each_channels_level():
+    """A static 20 s record: every sample is a whole number of LSBs; each channel's std is its noise level."""
+    sensor = PhotoReflectorArray(P, seed=3)
+    v = sensor.read(np.full(20_000, twist(5.0)))
+    counts = v / sensor.lsb_v
+    assert np.allclose(counts, np.rint(counts), atol=1e-6)
+    expected = np.sqrt(sensor.unit.noise_v**2 + sensor.lsb_v**2 / 12)  # white noise plus quantisation
+    assert v.std(axis=0) == pytest.approx(expected, rel=0.05)
+    assert sensor.unit.noise_v.max() / sensor.unit.noise_v.min() == pytest.approx(
+        P.photoreflector.noise_max_v / P.photoreflector.noise_min_v)
+
+
+def test_hysteresis_separates_loading_from_unloading_by_twice_the_play():
+    """Going up then down through the same torque, the output differs by 2·play·l_s·S on every channel."""
+    p = P.replace(photoreflector={"noise_min_v": 0.0, "noise_max_v": 0.0})
+    sensor = PhotoReflectorArray(p)
+    path = twist(np.concatenate([np.linspace(0, 10, 1001), np.linspace(10, 0, 1001)]))
+    v = sensor.read(path)
+    up, down = v[500], v[1501]  # both at 5 N·m
+    r = p.photoreflector.hysteresis_twist_rad
+    expected = 2 * r * p.flexure.sensing_radius_m * sensor.unit.sensitivity_v_per_m
+    assert np.abs(up - down) == pytest.approx(expected, rel=0.05, abs=2 * sensor.lsb_v)
+
+
+def test_play_operator_follows_only_past_its_half_width():
+    """The play operator holds within ±r of the input and tracks it beyond."""
+    y = play_operator(np.array([0.0, 0.5, 2.0, 1.5, 0.0]), 1.0)
+    assert y.tolist() == [0.0, 0.0, 1.0, 1.0, 1.0]
+
+
+def test_off_axis_moments_move_the_channels_by_about_60_mv_at_25_nm():
+    """T_x = 25 N·m changes the channels that see the tilt by about 0.06 V (paper Sec. IV-B)."""
+    sensor = PhotoReflectorArray(P)
+    v0 = sensor.ideal_voltages(twist([0.0]))[0]
+    vx = sensor.ideal_voltages(twist([0.0]), tx_nm=25.0)[0]
+    change = np.abs(vx - v0)
+    seen = change > 1e-9  # channels on the x axis do not see a tilt about x
+    assert seen.sum() == CHANNELS // 2
+    spread = P.photoreflector.crosstalk_spread
+    assert np.all((change[seen] > 0.06 * (1 - spread)) & (change[seen] < 0.06 * (1 + spread)))
+
+
+def test_temperature_scales_each_channel_by_its_coefficient():
+    """A 10 K warmer board changes V0 by exp(γ_k·10 K), channel by channel."""
+    sensor = PhotoReflectorArray(P)
+    t0 = P.photoreflector.reference_temperature_c
+    v = sensor.ideal_voltages(twist([0.0, 0.0]), temperature_c=np.array([t0, t0 + 10.0]))
+    assert v[1] / v[0] == pytest.approx(np.exp(sensor.unit.tempco_per_k * 10.0), rel=1e-12)
+
+
+def test_same_seeds_same_readings_and_unit_seed_picks_the_unit():
+    """Noise is reproducible from the run seed; a different unit seed is a different sensor."""
+    path = twist(np.linspace(-5, 5, 500))
+    a = PhotoReflectorArray(P, seed=1).read(path)
+    b = PhotoReflectorArray(P, seed=1).read(path)
+    assert np.array_equal(a, b)
+    other = draw_unit(P.replace(photoreflector={"unit_seed": 9}))
+    assert not np.allclose(other.sensitivity_v_per_m, draw_unit(P).sensitivity_v_per_m)
+
+
+def test_reading_in_chunks_equals_reading_at_once():
+    """Hysteresis and noise state carry over between calls, so a run can be read tick by tick."""
+    path = twist(np.concatenate([np.linspace(0, 8, 300), np.linspace(8, -3, 300)]))
+    whole = PhotoReflectorArray(P, seed=4).read(path)
+    sensor = PhotoReflectorArray(P, seed=4)
+    chunks = np.vstack([sensor.read(path[i:i + 100]) for i in range(0, 600, 100)])
+    assert np.array_equal(chunks, whole)
+
+
+def test_bad_inputs_name_the_argument():
+    """A moment series of the wrong length or a NaN temperature is refused by name."""
+    sensor = PhotoReflectorArray(P)
+    with pytest.raises(ValueError, match="tx_nm has shape"):
+        sensor.read(np.zeros(10), tx_nm=np.zeros(9))
+    with pytest.raises(ValueError, match="temperature_c has non-finite values at samples \\[2\\]"):
+        sensor.read(np.zeros(4), temperature_c=np.array([20.0, 20.0, np.nan, 20.0]))
+
+
+def test_reference_torque_is_quantised_to_the_mini85_resolution():
+    """MINI85 readings are whole multiples of 7/748 N·m and unbiased."""
+    rng = np.random.default_rng(0)
+    ref = reference_torque(np.full(20_000, 3.0), P, rng)
+    res = 7 / 748
+    assert np.allclose(ref / res, np.rint(ref / res))
+    assert ref.mean() == pytest.approx(3.0, abs=0.001)

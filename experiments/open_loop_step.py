@@ -96,7 +96,7 @@ def plot_result(result: OpenLoopStepResult, directory: Path) -> Path:
 
     directory.mkdir(parents=True, exist_ok=True)
     fig, axes = plt.subplots(1, len(result.steps), figsize=(4 * len(result.steps), 3.2), squeeze=False)
-    for ax, step, log in zip(axes[0], result.steps, result.logs):
+    for ax, step, log in zip(axes[0], result.steps, result.logs, strict=True):
         lever = log.meta.get("lever_length_m", 0.1)
         ax.plot(log["time"], log["force_loadcell"] * lever, label="load cell")
         ax.plot(log["time"], log["tau_current_estimate"], "--", label="current estimate")

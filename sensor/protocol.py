@@ -53,7 +53,7 @@ def _staircase(levels: tuple[float, ...], sign: float, dt: float) -> tuple[list,
     values, branch, level = [], [], []
     path = [0.0, *levels, *reversed(levels[:-1]), 0.0]
     n_tr, n_hold, n_quiet = round(TRANSITION_S / dt), round(HOLD_S / dt), round(QUIET_S / dt)
-    for a, b in zip(path[:-1], path[1:]):
+    for a, b in zip(path[:-1], path[1:], strict=True):
         direction = 1.0 if abs(b) > abs(a) else -1.0
         values += list(sign * np.linspace(a, b, n_tr + 1)[1:])
         branch += [direction] * n_tr

@@ -13,7 +13,7 @@ def test_every_parameter_has_unit_source_and_a_default_inside_its_range():
     p = TestbedParams()
     rows = p.rows()
     assert len(rows) > 40
-    for name, value, unit, source in rows:
+    for name, _value, unit, source in rows:
         assert unit, name
         kind = source.split(":")[0]
         assert kind.startswith("paper ") or kind in {"assumed", "tuned", "rule", "TI TMP117 datasheet"}, (

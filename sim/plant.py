@@ -61,8 +61,8 @@ class Plant:
         self.derived = derive(self.params)
         self.model = mujoco.MjModel.from_xml_string(build_xml(self.params, fixture))
         control_period = self.params.simulation.control_period_s
-        if timestep_s is None:
-            timestep_s, self.n_substeps = physics_timestep(self.params, fixture)
+        if timestep_s is None:  # the model already carries the rule's step
+            self.n_substeps = physics_timestep(self.params, fixture)[1]
         else:
             self.n_substeps = round(control_period / timestep_s)
             if self.n_substeps < 1 or not math.isclose(self.n_substeps * timestep_s, control_period,
@@ -79,7 +79,6 @@ class Plant:
         jnt = {name: m.joint(name).qposadr[0] for name in ("motor", "backlash", "flexure")}
         self._q_motor, self._q_backlash, self._q_flexure = jnt["motor"], jnt["backlash"], jnt["flexure"]
         self._dof_motor = m.joint("motor").dofadr[0]
-        self._dof_flexure = m.joint("flexure").dofadr[0]
         self._u_motor = m.actuator("motor").id
         self._u_external = m.actuator("external").id
         self._tendon = m.tendon("lever_angle").id

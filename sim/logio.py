@@ -1,0 +1,633 @@
+"""Read and write run logs as CSV, Parquet and MATLAB .mat, with one set of validation rules.
+
+A run log is the same whether simulated (``sim.run.run_open_loop``) or measured on a rig: columns named and
+in the units of :data:`sim.runlog.STANDARD_UNITS` (rotational joint) or :data:`SLIDE_UNITS` (slide joint),
+plus any further columns with their own units. ``docs/run_log_format.md`` is the user-facing description of
+the format; this module is its implementation.
+
+=================  ==========================================================================================
+``.csv``           a header row of column names, then one row per sample; floats written with ``repr`` (the
+                   shortest text that parses back to the same double). Units of columns that are not standard
+                   (or differ from the rotational standard) go to a sidecar ``<stem>.units.json``.
+``.parquet``       one float64 column per signal; units and meta as JSON in the schema metadata
+                   (keys ``torquebed.units`` and ``torquebed.meta``).
+``.mat``           one variable per column (an N x 1 double), a ``units`` struct (field = column, value = unit)
+                   and a ``meta`` char array holding JSON. v5/v7 files are read by ``scipy.io.loadmat``; v7.3
+                   (HDF5) files need ``h5py``.
+=================  ==========================================================================================
+
+Rows in error messages are numbered as a spreadsheet shows the CSV file: the header is row 1, so the first
+sample is row 2 and sample ``k`` (1-based, MATLAB's ``q(k)``) is row ``k + 1``. The same numbering is used
+for every format, so a log gives the same message whether it is stored as CSV, Parquet or .mat.
+"""
+
+from __future__ import annotations
+
+import csv
+import difflib
+import json
+import math
+import re
+import warnings
+from collections.abc import Callable, Iterator, Sequence
+from contextlib import contextmanager
+from dataclasses import dataclass
+from pathlib import Path
+from typing import IO, Any
+
+import numpy as np
+
+from sim.runlog import STANDARD_UNITS, RunLog
+
+JOINTS = ("hinge", "slide")
+
+# A slide (prismatic) joint's effort, position and velocity are linear; every other column keeps its unit.
+SLIDE_UNITS: dict[str, str] = {**STANDARD_UNITS, "tau_cmd": "N", "q": "m", "qd": "m/s"}
+
+REQUIRED_COLUMNS = ("time", "tau_cmd")
+OUTPUT_COLUMNS = ("q", "tau_sensor", "force_loadcell")  # a log needs at least one measure of the output side
+
+# The sampling check compares every step with the median step; that needs at least two steps.
+MIN_SAMPLES = 3
+
+HEADER_ROWS = 1  # rows in messages count the CSV header as row 1, so sample index i (0-based) is row i + 2
+FIRST_FEW = 5  # how many offending rows an error lists
+TYPO_CUTOFF = 0.8  # difflib similarity above which an undeclared column is taken for a misspelt standard name
+UNKNOWN_UNIT = "unknown"  # unit given to an undeclared, non-standard column that is kept
+
+# ASCII spellings accepted for the format's non-ASCII units (MATLAB and spreadsheet users often cannot type
+# '·' or '°'); a log read with one of them carries the canonical unit.
+UNIT_ALIASES: dict[str, str] = {
+    **{alias: "N·m" for alias in ("N*m", "N.m", "Nm", "N m", "N⋅m")},
+    **{alias: "°C" for alias in ("degC", "deg C", "℃")},
+}
+
+PARQUET_UNITS_KEY = b"torquebed.units"
+PARQUET_META_KEY = b"torquebed.meta"
+MAT_RESERVED = ("units", "meta")
+_MATLAB_NAME = re.compile(r"[A-Za-z][A-Za-z0-9_]{0,62}")  # MATLAB's isvarname, namelengthmax = 63
+_HDF5_SIGNATURE = b"\x89HDF\r\n\x1a\n"
+_HDF5_USERBLOCK = 512  # a v7.3 .mat is HDF5 behind MATLAB's 512-byte header
+
+
+class LogError(ValueError):
+    """A run log breaks the format. ``column`` and ``row`` (spreadsheet row, header = 1) name where, if known."""
+
+    def __init__(self, message: str, *, column: str | None = None, row: int | None = None) -> None:
+        super().__init__(message)
+        self.column, self.row = column, row
+
+
+class LogWarning(UserWarning):
+    """A run log was read, but something in it was guessed (e.g. a column without a unit)."""
+
+
+@dataclass(frozen=True)
+class SlideRunLog(RunLog):
+    """A :class:`~sim.runlog.RunLog` of a slide joint: ``tau_cmd`` [N], ``q`` [m], ``qd`` [m/s].
+
+    ``RunLog`` fixes the rotational units for the standard names; this subclass checks :data:`SLIDE_UNITS`
+    instead and otherwise applies ``RunLog``'s checks (equal-length 1-D columns, a unit for each, ``time``).
+    """
+
+    def __post_init__(self) -> None:
+        for name, unit in self.units.items():
+            if name in self.columns and name in SLIDE_UNITS and unit != SLIDE_UNITS[name]:
+                raise ValueError(f"column {name!r} is in {unit!r}; a slide joint's log fixes {SLIDE_UNITS[name]!r}")
+        as_rotational = {name: STANDARD_UNITS.get(name, unit) for name, unit in self.units.items()}
+        RunLog(self.columns, as_rotational)  # the base class's checks, on the units a hinge log would carry
+
+
+def joint_units(joint: str) -> dict[str, str]:
+    """The standard columns' units for a ``'hinge'`` (rotational) or ``'slide'`` (linear) joint."""
+    if joint == "hinge":
+        return dict(STANDARD_UNITS)
+    if joint == "slide":
+        return dict(SLIDE_UNITS)
+    raise ValueError(f"joint = {joint!r}; expected one of {JOINTS}")
+
+
+def sidecar_path(csv_path: str | Path) -> Path:
+    """The units sidecar of a CSV log: ``run.csv`` -> ``run.units.json``."""
+    csv_path = Path(csv_path)
+    return csv_path.with_name(csv_path.stem + ".units.json")
+
+
+def row_of(index: int) -> int:
+    """Spreadsheet row of the sample with 0-based ``index`` (the header is row 1)."""
+    return index + 1 + HEADER_ROWS
+
+
+# ---------------------------------------------------------------------------------------------------- writing
+
+
+def write_log(log: RunLog, path: str | Path, *, overwrite: bool = False) -> Path:
+    """Write ``log`` in the format given by the suffix of ``path`` (``.csv``, ``.parquet``, ``.mat``).
+
+    Every column is stored as float64. The log is checked first with the rules :func:`read_log` applies
+    (except sampling regularity), so a file this writes can be read back.
+
+    Parameters
+    ----------
+    log : RunLog
+        The run (a :class:`SlideRunLog` for a slide joint).
+    path : str or Path
+        Target file. For CSV the sidecar ``<stem>.units.json`` is written beside it when some column's unit
+        is not the rotational standard one (and a stale sidecar is removed when ``overwrite``).
+    overwrite : bool
+        Replace existing files; otherwise an existing target (or sidecar) raises ``FileExistsError``.
+
+    Returns
+    -------
+    Path
+        ``path``.
+    """
+    path = Path(path)
+    writer = _WRITERS.get(_suffix(path))
+    if writer is None:
+        raise LogError(f"cannot write {path.name!r}: unknown suffix {path.suffix!r}; use one of "
+                       f"{', '.join(_WRITERS)}")
+    columns = {name: _float_column_for_writing(name, values) for name, values in log.columns.items()}
+    _check_columns(list(columns), set(log.units), "the log's units")
+    _check_samples(columns, max_jitter=math.inf)
+    writer(columns, dict(log.units), _meta_json(log.meta), path, overwrite)
+    return path
+
+
+def _write_csv(columns: dict[str, np.ndarray], units: dict[str, str], meta_json: str, path: Path,
+               overwrite: bool) -> None:
+    side = sidecar_path(path)
+    declared = {name: unit for name, unit in units.items() if STANDARD_UNITS.get(name) != unit}
+    if not overwrite:
+        for target in (path, side):  # a sidecar left from another log would give this one wrong units
+            if target.exists():
+                raise FileExistsError(f"{target} exists; pass overwrite=True to replace it")
+    rows = np.column_stack(list(columns.values())).tolist()  # Python floats: repr is the shortest exact text
+    with _created(path, overwrite, "w", newline="", encoding="utf-8") as fh:
+        csv.writer(fh, lineterminator="\n").writerow(list(columns))
+        fh.writelines(",".join(map(repr, row)) + "\n" for row in rows)
+    if declared:
+        with _created(side, overwrite, "w", encoding="utf-8") as fh:
+            json.dump(declared, fh, ensure_ascii=False, indent=1)
+            fh.write("\n")
+    elif side.exists():
+        side.unlink()  # overwrite=True: a sidecar from an earlier log would give this one wrong units
+
+
+def _write_parquet(columns: dict[str, np.ndarray], units: dict[str, str], meta_json: str, path: Path,
+                   overwrite: bool) -> None:
+    import pyarrow as pa
+    import pyarrow.parquet as pq
+
+    table = pa.table({name: pa.array(values, type=pa.float64()) for name, values in columns.items()})
+    table = table.replace_schema_metadata({PARQUET_UNITS_KEY: json.dumps(units, ensure_ascii=False),
+                                           PARQUET_META_KEY: meta_json})
+    with _created(path, overwrite, "wb") as fh:
+        pq.write_table(table, fh)
+
+
+def _write_mat(columns: dict[str, np.ndarray], units: dict[str, str], meta_json: str, path: Path,
+               overwrite: bool) -> None:
+    from scipy.io import savemat
+
+    for name in columns:
+        if not _MATLAB_NAME.fullmatch(name) or name in MAT_RESERVED:
+            raise LogError(f"column {name!r} cannot be a MATLAB variable (a letter, then letters, digits or '_', "
+                           f"at most 63 characters; not {' or '.join(map(repr, MAT_RESERVED))}); write CSV or "
+                           f"Parquet instead", column=name)
+    with _created(path, overwrite, "wb") as fh:
+        savemat(fh, {**columns, "units": units, "meta": meta_json}, oned_as="column", do_compression=True)
+
+
+_WRITERS: dict[str, Callable[..., None]] = {".csv": _write_csv, ".parquet": _write_parquet, ".mat": _write_mat}
+
+
+@contextmanager
+def _created(path: Path, overwrite: bool, mode: str, **kwargs: Any) -> Iterator[IO]:
+    """Open ``path`` for writing, exclusively unless ``overwrite``; remove it again if writing fails."""
+    try:
+        fh = path.open(mode.replace("w", "w" if overwrite else "x"), **kwargs)
+    except FileExistsError:
+        raise FileExistsError(f"{path} exists; pass overwrite=True to replace it") from None
+    try:
+        with fh:
+            yield fh
+    except BaseException:
+        path.unlink(missing_ok=True)
+        raise
+
+
+def _float_column_for_writing(name: str, values: np.ndarray) -> np.ndarray:
+    values = np.asarray(values)
+    if values.dtype.kind not in "iuf":
+        raise LogError(f"column {name!r} holds {values.dtype} values; the format stores real numbers",
+                       column=name)
+    return values.astype(np.float64)
+
+
+def _meta_json(meta: dict[str, Any]) -> str:
+    try:
+        return json.dumps(meta, ensure_ascii=False, allow_nan=False)
+    except (TypeError, ValueError) as err:
+        raise LogError(f"meta must be JSON-serialisable (no NaN): {err}") from None
+
+
+# ---------------------------------------------------------------------------------------------------- reading
+
+
+@dataclass
+class _Raw:
+    """What a reader found in a file, before validation.
+
+    ``columns`` values are float64 arrays or, where the file holds text or mixed cells, sequences of cells.
+    ``declared`` is the unit the file itself gives each column (sidecar, schema metadata, ``units`` struct).
+    """
+
+    columns: dict[str, Any]
+    declared: dict[str, str]
+    meta: dict[str, Any]
+    where: str  # how a user declares units for this format, for messages
+
+
+def read_log(path: str | Path, *, joint: str = "hinge", max_jitter: float = 0.05) -> RunLog:
+    """Read and validate a run log; the format is given by the suffix (``.csv``, ``.parquet``, ``.mat``).
+
+    The file is only read, never changed. See ``docs/run_log_format.md`` for the rules and messages.
+
+    Parameters
+    ----------
+    path : str or Path
+        The log file (for CSV, a sidecar ``<stem>.units.json`` beside it is read when present).
+    joint : {'hinge', 'slide'}
+        'hinge': ``tau_cmd`` [N·m], ``q`` [rad], ``qd`` [rad/s]; 'slide': [N], [m], [m/s].
+    max_jitter : float
+        Largest accepted relative deviation ``|dt_k - median(dt)| / median(dt)`` of a sampling step from the
+        median step [1]; ``math.inf`` accepts any sampling.
+
+    Returns
+    -------
+    RunLog
+        A :class:`SlideRunLog` for ``joint='slide'``. Every column is float64. Columns keep the file's order.
+
+    Raises
+    ------
+    LogError
+        The file breaks the format; the message names the column and the row (the header is row 1).
+    """
+    path = Path(path)
+    units = joint_units(joint)
+    if not max_jitter >= 0:
+        raise ValueError(f"max_jitter = {max_jitter}; expected a relative step deviation >= 0")
+    reader = _READERS.get(_suffix(path))
+    if reader is None:
+        raise LogError(f"cannot read {path.name!r}: unknown suffix {path.suffix!r}; use one of "
+                       f"{', '.join(_READERS)}")
+    raw = reader(path)
+    _check_columns(list(raw.columns), set(raw.declared), raw.where)
+    log_units = _units(list(raw.columns), raw.declared, units, joint, raw.where)
+    columns = {name: _to_float(name, values) for name, values in raw.columns.items()}
+    _check_samples(columns, max_jitter=max_jitter)
+    return (SlideRunLog if joint == "slide" else RunLog)(columns, log_units, raw.meta)
+
+
+def _read_csv(path: Path) -> _Raw:
+    side = sidecar_path(path)
+    declared: dict[str, str] = {}
+    if side.exists():
+        try:
+            declared = json.loads(side.read_text(encoding="utf-8"))
+        except json.JSONDecodeError as err:
+            raise LogError(f"{side.name}: not valid JSON ({err})") from None
+        if not (isinstance(declared, dict) and all(isinstance(k, str) and isinstance(v, str)
+                                                   for k, v in declared.items())):
+            raise LogError(f"{side.name} must map column names to unit strings, "
+                           f'e.g. {{"tau_flexure": "N·m"}}')
+    with path.open(newline="", encoding="utf-8-sig") as fh:  # -sig: skip the byte-order mark Excel writes
+        reader = csv.reader(fh)
+        header = [name.strip() for name in next(reader, [])]
+        first = next(reader, None)
+    if not header:
+        raise LogError(f"{path.name} is empty; the first row must name the columns", row=1)
+    if len(header) == 1 and (";" in header[0] or "\t" in header[0]):
+        sep = "';'" if ";" in header[0] else "tabs"
+        raise LogError(f"the header row is one cell {header[0]!r}: the file seems separated by {sep}; "
+                       f"the format separates by ','", row=1)
+    for j, name in enumerate(header):
+        if not name:
+            raise LogError(f"row 1, cell {j + 1}: empty column name", row=1)
+        if name in header[:j]:
+            raise LogError(f"column {name!r} appears twice in the header row (cells {header.index(name) + 1} "
+                           f"and {j + 1})", column=name, row=1)
+    if first and not any(_is_number(cell) for cell in first):
+        shown = ", ".join(repr(c) for c in first[:4]) + (", ..." if len(first) > 4 else "")
+        raise LogError(f"row {row_of(0)} holds no number ({shown}): a units row? The CSV format has only "
+                       f"the header row; declare units of non-standard columns in {side.name}",
+                       row=row_of(0))
+    where = f"the sidecar {side.name}"
+    numbers = _csv_numbers(path, header)
+    if numbers is not None:
+        return _Raw(numbers, declared, {}, where)
+    with path.open(newline="", encoding="utf-8-sig") as fh:  # something is wrong: find it cell by cell
+        body = list(csv.reader(fh))[1:]
+    while body and not body[-1]:
+        body.pop()
+    for i, row in enumerate(body):
+        if len(row) != len(header):
+            raise LogError(f"row {row_of(i)} has {len(row)} cells; the header row has {len(header)}",
+                           row=row_of(i))
+    cells = list(zip(*body)) if body else [() for _ in header]
+    return _Raw(dict(zip(header, cells)), declared, {}, where)
+
+
+def _csv_numbers(path: Path, header: list[str]) -> dict[str, np.ndarray] | None:
+    """All columns as float64 if every cell is a number (pyarrow: fast, correctly rounded), else None.
+
+    Anything unusual (text, empty cells, 'nan', ragged or blank rows) returns None, and the cell-by-cell
+    path reads the file again to name the column and row.
+    """
+    import pyarrow as pa
+    import pyarrow.csv as pa_csv
+
+    try:
+        table = pa_csv.read_csv(
+            path, read_options=pa_csv.ReadOptions(column_names=header, skip_rows=1),
+            parse_options=pa_csv.ParseOptions(ignore_empty_lines=False),
+            convert_options=pa_csv.ConvertOptions(column_types=dict.fromkeys(header, pa.float64())))
+    except pa.ArrowInvalid:
+        return None
+    if any(column.null_count for column in table.columns):
+        return None
+    return {name: np.array(table.column(name).to_numpy(), dtype=np.float64) for name in header}
+
+
+def _read_parquet(path: Path) -> _Raw:
+    import pyarrow as pa
+    import pyarrow.parquet as pq
+
+    try:
+        table = pq.read_table(path)
+    except pa.ArrowInvalid as err:
+        raise LogError(f"{path.name} is not a readable Parquet file: {err}") from None
+    names = table.column_names
+    for j, name in enumerate(names):
+        if name in names[:j]:
+            raise LogError(f"column {name!r} appears twice", column=name)
+    metadata = table.schema.metadata or {}
+    declared = _json_from(metadata.get(PARQUET_UNITS_KEY), f"{path.name}: schema metadata 'torquebed.units'")
+    meta = _json_from(metadata.get(PARQUET_META_KEY), f"{path.name}: schema metadata 'torquebed.meta'")
+    columns: dict[str, Any] = {}
+    for name in names:
+        column = table.column(name)
+        if (pa.types.is_floating(column.type) or pa.types.is_integer(column.type)) and column.null_count == 0:
+            columns[name] = np.array(column.to_numpy(), dtype=np.float64)
+        else:
+            columns[name] = column.to_pylist()  # text, booleans or nulls: _to_float names the first bad cell
+    return _Raw(columns, declared, meta, "the schema metadata 'torquebed.units'")
+
+
+def _read_mat(path: Path) -> _Raw:
+    from scipy.io import loadmat
+    from scipy.io.matlab import MatReadError, matfile_version
+
+    with path.open("rb") as fh:
+        head = fh.read(_HDF5_USERBLOCK + len(_HDF5_SIGNATURE))
+    if _HDF5_SIGNATURE in (head[:len(_HDF5_SIGNATURE)], head[_HDF5_USERBLOCK:]):
+        variables = _read_mat73(path)
+    else:
+        try:
+            major = matfile_version(str(path))[0]
+        except (MatReadError, ValueError) as err:
+            raise LogError(f"{path.name} is not a MATLAB .mat file: {err}") from None
+        if major == 2:
+            raise LogError(f"{path.name} has a MATLAB v7.3 header but no HDF5 data after it; is it truncated?")
+        variables = {k: v for k, v in loadmat(str(path), simplify_cells=True).items() if not k.startswith("__")}
+    units = variables.pop("units", None)
+    meta_text = variables.pop("meta", None)
+    declared = _mat_units(units)
+    if meta_text is not None and not isinstance(meta_text, str):
+        raise LogError(f"{path.name}: variable 'meta' must be a char array of JSON text", column="meta")
+    meta = _json_from(meta_text, f"{path.name}: variable 'meta'")
+    columns: dict[str, Any] = {}
+    for name, value in variables.items():
+        columns[name] = _mat_vector(name, value)
+    return _Raw(columns, declared, meta, "the 'units' struct")
+
+
+def _read_mat73(path: Path) -> dict[str, Any]:
+    """Variables of a v7.3 (HDF5) .mat as loadmat(simplify_cells=True) gives them: vectors, str, dict."""
+    try:
+        import h5py
+    except ImportError:
+        raise LogError(f"{path.name} is a MATLAB v7.3 (HDF5) file; reading it needs h5py "
+                       f"(pip install h5py), or re-save it as v7 in MATLAB: save('{path.name}', '-v7')") from None
+
+    def value(obj: Any) -> Any:
+        cls = obj.attrs.get("MATLAB_class", b"")
+        cls = cls.decode() if isinstance(cls, bytes) else str(cls)
+        if isinstance(obj, h5py.Group):  # a struct: one member per field, in MATLAB's order if recorded
+            return {key: value(obj[key]) for key in fields(obj) or list(obj)}
+        data = obj[()]
+        if obj.attrs.get("MATLAB_empty", 0):
+            return "" if cls == "char" else np.zeros(0)
+        if cls == "char":
+            return "".join(map(chr, np.ravel(data, order="F")))  # MATLAB stores chars as UTF-16 code units
+        if cls == "cell":  # references to the cells' contents
+            cells = np.empty(data.shape, dtype=object)
+            for index in np.ndindex(data.shape):
+                cells[index] = value(obj.file[data[index]])
+            return cells.T
+        return np.asarray(data).T  # HDF5 holds MATLAB arrays transposed; .T restores MATLAB's shape
+
+    def fields(group: Any) -> list[str]:
+        names = group.attrs.get("MATLAB_fields")
+        return [] if names is None else [b"".join(np.ravel(f)).decode() for f in names]
+
+    with h5py.File(path, "r") as fh:
+        variables = {name: value(fh[name]) for name in fh if not name.startswith("#")}  # '#refs#': cell data
+    # HDF5 lists names sorted; the column order survives in 'units'
+    order = [name for name in _mat_units(variables.get("units")) if name in variables]
+    return {name: variables[name] for name in order + [name for name in variables if name not in order]}
+
+
+def _mat_units(units: Any) -> dict[str, str]:
+    """The ``units`` variable: a struct (field = column) or an N x 2 cell {column, unit}."""
+    if units is None:
+        return {}
+    if isinstance(units, dict):
+        pairs = list(units.items())
+    else:
+        cells = np.asarray(units, dtype=object)
+        if cells.ndim != 2 or cells.shape[1] != 2:
+            raise LogError(f"variable 'units' has shape {cells.shape}; expected a struct (field = column name) "
+                           f"or an N x 2 cell array {{column, unit}}", column="units")
+        pairs = [(k, v) for k, v in cells]
+    if not all(isinstance(k, str) and isinstance(v, str) for k, v in pairs):
+        raise LogError("variable 'units' must map column names to unit char arrays", column="units")
+    return dict(pairs)
+
+
+def _mat_vector(name: str, value: Any) -> Any:
+    if isinstance(value, str):
+        raise LogError(f"variable {name!r} is text ({value[:20]!r}); every variable but "
+                       f"{' and '.join(map(repr, MAT_RESERVED))} must be a numeric column", column=name)
+    if isinstance(value, dict):
+        raise LogError(f"variable {name!r} is a struct; every variable but "
+                       f"{' and '.join(map(repr, MAT_RESERVED))} must be a numeric column", column=name)
+    array = np.asarray(value)
+    if array.ndim == 0:  # loadmat(simplify_cells=True) gives a 1 x 1 column as a scalar
+        array = array.reshape(1)
+    if array.ndim == 2 and 1 in array.shape:
+        array = array.ravel()
+    if array.ndim != 1:
+        raise LogError(f"variable {name!r} has shape {array.shape}; every variable but "
+                       f"{' and '.join(map(repr, MAT_RESERVED))} must be an N x 1 column", column=name)
+    if array.dtype.kind in "iuf":
+        return array.astype(np.float64)
+    return list(array)  # logical, cell or char cells: _to_float names the first bad one
+
+
+_READERS: dict[str, Callable[[Path], _Raw]] = {".csv": _read_csv, ".parquet": _read_parquet, ".mat": _read_mat}
+
+
+def _json_from(text: bytes | str | None, where: str) -> dict[str, Any]:
+    if text is None:
+        return {}
+    try:
+        value = json.loads(text)
+    except json.JSONDecodeError as err:
+        raise LogError(f"{where} is not valid JSON ({err})") from None
+    if not isinstance(value, dict):
+        raise LogError(f"{where} must be a JSON object")
+    return value
+
+
+# ------------------------------------------------------------------------------------------------- validation
+
+
+def _check_columns(names: Sequence[str], declared: set[str], where: str) -> None:
+    """Misspelt standard names, missing required columns, no output-side column."""
+    lowered = {name.lower(): name for name in STANDARD_UNITS}
+    for name in names:
+        if name in STANDARD_UNITS or name in declared:
+            continue
+        close = difflib.get_close_matches(name.lower(), list(lowered), n=1, cutoff=TYPO_CUTOFF)
+        if close:
+            raise LogError(f"unknown column {name!r}: did you mean {lowered[close[0]]!r}? (to keep a column of "
+                           f"this name, declare its unit in {where})", column=name, row=1)
+    for name in REQUIRED_COLUMNS:
+        if name not in names:
+            close = difflib.get_close_matches(name, list(names), n=1, cutoff=0.6)
+            hint = f"; is {close[0]!r} meant to be it?" if close else ""
+            raise LogError(f"missing required column {name!r} [{STANDARD_UNITS[name]}]{hint}", column=name)
+    if not any(name in names for name in OUTPUT_COLUMNS):
+        raise LogError(f"the log needs at least one of the columns {', '.join(map(repr, OUTPUT_COLUMNS))}; it has "
+                       f"{', '.join(map(repr, names))}")
+
+
+def _units(names: Sequence[str], declared: dict[str, str], standard: dict[str, str], joint: str,
+           where: str) -> dict[str, str]:
+    """Unit of every column: the joint's for standard names (a declared one must agree), else declared."""
+    units: dict[str, str] = {}
+    unknown = []
+    for name in names:
+        unit = declared.get(name)
+        if unit is not None:
+            unit = UNIT_ALIASES.get(unit.strip(), unit.strip())
+        if name in standard:
+            if unit is not None and unit != standard[name]:
+                other = "slide" if joint == "hinge" else "hinge"
+                hint = (f"; for a {other} joint pass joint={other!r}"
+                        if unit == joint_units(other)[name] else "")
+                raise LogError(f"column {name!r} is in {unit!r} according to {where}; the format fixes "
+                               f"{standard[name]!r} for joint={joint!r}{hint}", column=name)
+            units[name] = standard[name]
+        elif unit is not None:
+            units[name] = unit
+        else:
+            units[name] = UNKNOWN_UNIT
+            unknown.append(name)
+    if unknown:
+        warnings.warn(f"column(s) {', '.join(map(repr, unknown))} are not in the format and have no unit; kept "
+                      f"with unit {UNKNOWN_UNIT!r} (declare their units in {where})", LogWarning, stacklevel=3)
+    return units
+
+
+def _is_number(cell: Any) -> bool:
+    try:
+        _cell_to_float(cell)
+    except (TypeError, ValueError):
+        return False
+    return True
+
+
+def _cell_to_float(cell: Any) -> float:
+    if isinstance(cell, str):
+        return float(cell.strip())  # float() rejects '' and text; accepts 'nan'/'inf', caught as non-finite later
+    if isinstance(cell, (bool, np.bool_)) or cell is None:
+        raise TypeError(type(cell).__name__)
+    array = np.asarray(cell)
+    if array.size != 1 or array.dtype.kind not in "iuf":
+        raise TypeError(array.dtype.name)
+    return float(array.reshape(()))
+
+
+def _to_float(name: str, values: Any) -> np.ndarray:
+    """The column as float64, or a LogError naming the first cell that is not a number."""
+    if isinstance(values, np.ndarray) and values.dtype.kind in "iuf":
+        return values.astype(np.float64)
+    if all(isinstance(cell, str) for cell in values):
+        try:  # fast path: NumPy parses text with correct rounding, like float()
+            return np.array([cell.strip() for cell in values], dtype=np.float64)
+        except ValueError:
+            pass
+    out = np.empty(len(values))
+    for i, cell in enumerate(values):
+        try:
+            out[i] = _cell_to_float(cell)
+        except (TypeError, ValueError):
+            what = "empty cell" if cell is None or (isinstance(cell, str) and not cell.strip()) else (
+                f"{cell!r} is not a number")
+            raise LogError(f"column {name!r}, row {row_of(i)}: {what}", column=name, row=row_of(i)) from None
+    return out
+
+
+def _rows(indices: np.ndarray) -> str:
+    shown = ", ".join(str(row_of(int(i))) for i in indices[:FIRST_FEW])
+    return shown + (", ..." if len(indices) > FIRST_FEW else "")
+
+
+def _check_samples(columns: dict[str, np.ndarray], *, max_jitter: float) -> None:
+    """Length, finiteness, strictly increasing ``time``, regular sampling."""
+    n = len(columns["time"])
+    if n < MIN_SAMPLES:
+        raise LogError(f"the log has {n} sample(s); at least MIN_SAMPLES = {MIN_SAMPLES} are needed (the sampling "
+                       f"check compares steps with the median step)")
+    for name, values in columns.items():
+        bad = np.flatnonzero(~np.isfinite(values))
+        if len(bad):
+            raise LogError(f"column {name!r}: {len(bad)} value(s) NaN or infinite, at rows {_rows(bad)}",
+                           column=name, row=row_of(int(bad[0])))
+    time = columns["time"]
+    dt = np.diff(time)
+    back = np.flatnonzero(dt <= 0) + 1
+    if len(back):
+        i = int(back[0])
+        now, before = float(time[i]), float(time[i - 1])
+        raise LogError(f"column 'time', row {row_of(i)}: {now!r} s does not exceed {before!r} s of row "
+                       f"{row_of(i - 1)}; time must increase strictly ({len(back)} such row(s): {_rows(back)})",
+                       column="time", row=row_of(i))
+    if math.isinf(max_jitter):
+        return
+    median = float(np.median(dt))
+    deviation = np.abs(dt - median) / median
+    irregular = np.flatnonzero(deviation > max_jitter) + 1
+    if len(irregular):
+        i = int(irregular[0])
+        raise LogError(f"column 'time', row {row_of(i)}: the step {dt[i - 1]:.6g} s from row {row_of(i - 1)} "
+                       f"deviates {100 * deviation[i - 1]:.3g} % from the median step {median:.6g} s; "
+                       f"max_jitter = {100 * max_jitter:.3g} % ({len(irregular)} such step(s), at rows "
+                       f"{_rows(irregular)})", column="time", row=row_of(i))
+
+
+def _suffix(path: Path) -> str:
+    return path.suffix.lower()

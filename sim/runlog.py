@@ -1,14 +1,14 @@
 """Run logs: one format for simulated and measured runs (time series with units).
 
+Files are read and written by :mod:`sim.logio` (CSV, Parquet, MATLAB .mat; see docs/run_log_format.md).
+
 The standard columns (names and units) are those a measured log can also carry; a simulated run adds the
 plant's true internal signals under further names, each with its unit.
 """
 
 from __future__ import annotations
 
-import csv
 from dataclasses import dataclass, field
-from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -67,16 +67,6 @@ class RunLog:
 
     def __len__(self) -> int:
         return len(self.columns["time"])
-
-    def to_csv(self, path: str | Path) -> Path:
-        """Write a CSV with a header row of column names (units are those of the format)."""
-        path = Path(path)
-        names = list(self.columns)
-        with path.open("w", newline="") as fh:
-            writer = csv.writer(fh)
-            writer.writerow(names)
-            writer.writerows(np.column_stack([self.columns[k] for k in names]).tolist())
-        return path
 
     def to_dict(self) -> dict[str, Any]:
         """JSON-ready: columns as lists, units, meta."""

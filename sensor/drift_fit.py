@@ -123,9 +123,10 @@ class DriftFit:
 
     def to_dict(self) -> dict[str, Any]:
         """JSON-ready dictionary."""
+        names = self.coefficient_names
         return {"model": self.model,
-                "coefficients": dict(zip(self.coefficient_names, self.coefficients)),
-                "coefficient_units": dict(zip(self.coefficient_names, self.coefficient_units)),
+                "coefficients": dict(zip(names, self.coefficients, strict=True)),
+                "coefficient_units": dict(zip(names, self.coefficient_units, strict=True)),
                 "rmse_nm": self.rmse_nm, "max_abs_error_nm": self.max_abs_error_nm,
                 "n_points": self.n_points, "t_range_c": list(self.t_range_c)}
 

@@ -18,7 +18,9 @@ Measured in one process (the full-constraint solves in a child process, for the 
   the raw design matrix (the paper's formulation handed to a general solver), for the two settings
   with active bounds marked ``*``, at N <= 1e5 only, each in a child process under a timeout; at 1e6
   the dense constraint matrix alone is 400 MB and it is skipped. Its memory is the growth of the
-  child's max RSS while building and solving (it includes ProxQP's own allocations).
+  child's max RSS while building and solving (it includes ProxQP's own allocations). ProxQP's dense
+  backend also reserves an (n + m) x (n + m) matrix (n = 25, m = 2N): 3.2 GB of address space at
+  N = 1e4 (not touched, so not in the RSS), 320 GB at 1e5, which the allocator refuses.
 
 Times are the best of ``--repeats`` runs; memory is the ``tracemalloc`` peak of a separate run
 (Python/numpy allocations; the solver's C++ allocations are not seen), relative to the data
@@ -57,6 +59,7 @@ ACTIVE_GAMMA = 1e4
 TIGHT_FACTOR = 1.01
 FULL_QP_MAX_N = 100_000
 FULL_QP_EPS_ABS = 1e-9
+N_THETA = cal.N_COEFFICIENTS
 
 
 def synthetic_calibration_data(n: int, seed: int = SEED) -> tuple[np.ndarray, np.ndarray]:
@@ -134,15 +137,26 @@ def _full_qp_child(n: int, gamma: float, e_max: float, out: mp.Queue) -> None:
 
 
 def full_qp(n: int, gamma: float, e_max: float, timeout_s: float):
-    """(seconds, theta or None, growth of the child's max RSS [bytes]) or None on timeout."""
+    """Run the full-constraint solve in a child process.
+
+    Returns ("ok", seconds, theta or None, growth of the child's max RSS [bytes]),
+    ("timeout", timeout_s) or ("died", exit code) -- ProxQP's dense backend aborts the process when
+    it cannot allocate its (n + m) x (n + m) KKT matrix.
+    """
     ctx = mp.get_context("spawn")
     q = ctx.Queue()
     proc = ctx.Process(target=_full_qp_child, args=(n, gamma, e_max, q))
     proc.start()
-    try:
-        res = q.get(timeout=timeout_s)
-    except queue.Empty:
-        res = None
+    t_end = time.perf_counter() + timeout_s
+    res = None
+    while res is None:
+        try:
+            res = ("ok", *q.get(timeout=1.0))
+        except queue.Empty:
+            if not proc.is_alive():
+                res = ("died", proc.exitcode)
+            elif time.perf_counter() > t_end:
+                res = ("timeout", timeout_s)
     proc.join(timeout=5)
     if proc.is_alive():
         proc.terminate()
@@ -202,10 +216,15 @@ def main(argv=None) -> None:
                              f"(G alone {2 * n * 25 * 8 / 1e6:.0f} MB)"))
                 continue
             res = full_qp(n, gamma, e_max, args.full_qp_timeout)
-            if res is None:
-                rows.append((label, float("nan"), 0, f"timed out after {args.full_qp_timeout:g} s"))
+            kkt_gb = (2 * n + N_THETA) ** 2 * 8 / 1e9
+            if res[0] == "timeout":
+                rows.append((label, float("nan"), 0, f"timed out after {res[1]:g} s"))
                 continue
-            dt, theta_full, rss = res
+            if res[0] == "died":
+                rows.append((label, float("nan"), 0, f"solver process died (exit code {res[1]}); "
+                             f"its dense (n+m)^2 matrix needs {kkt_gb:.0f} GB"))
+                continue
+            _, dt, theta_full, rss = res
             if theta_full is None:
                 rows.append((label, dt, rss, "ProxQP reported failure"))
                 continue

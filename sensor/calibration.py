@@ -27,10 +27,13 @@ Numerics (what the paper, which used MATLAB ``lsqlin`` on all 2N constraints, do
 ------------------------------------------------------------------------------------------------------
 Cubes of volts make ``A`` badly scaled and the eight channels are nearly collinear (all follow the same
 torque). Internally every channel is mapped to ``u = (x - mid) / half_range`` in [-1, 1] (an invertible
-change of the column basis, ``B = A T``, ``theta = T phi``) and a tall-skinny QR (TSQR) of ``[B y]`` is
-accumulated in chunks of :data:`CHUNK_ROWS` rows (``B = Q R``; O(N 25^2) work, O(chunk) memory, ``A``
-is never formed, and the conditioning is that of ``B``, not of ``B^T B``). The quiet block's centred
-factor comes out of the same pass (Householder centring, see ``_factor``).
+change of the column basis, ``B = A T``, ``theta = T phi``) and ``B = Q R`` is factorised in one
+streaming pass of chunks of :data:`CHUNK_ROWS` rows (O(N 25^2) work, O(chunk) memory, ``A`` is never
+formed): a Householder tall-skinny QR (TSQR) for short records, and for N >= :data:`SKETCH_MIN_N` a
+Cholesky QR of ``B R_s^-1``, preconditioned by the R factor ``R_s`` of a random row sample, which runs
+at matrix-multiply speed and is accepted only if ``cond(B R_s^-1) <= 1e3`` (else TSQR). Either way
+the conditioning is that of ``B``, not of ``B^T B``. The quiet block's centred factor comes out of the
+same pass (see ``_factor_tsqr`` and ``_factor_sketched``).
 
 In the coordinates ``z = R phi / sqrt(N)`` the objective divided by N is
 ``||z - c||^2 + gamma ||P0 z||^2 + const`` and the constraint rows are sqrt(N) times rows of the
@@ -131,6 +134,18 @@ MAX_ROWS_ADDED_PER_ITERATION = 128
 MAX_CUTTING_PLANE_ITERATIONS = 200
 """Cutting-plane: iteration cap; reaching it raises instead of returning an unproven point."""
 
+SKETCH_ROWS = 16_384
+"""Rows sampled for the preconditioner of the sketched Cholesky QR (see ``_factor_sketched``)."""
+
+SKETCH_MIN_N = 4 * SKETCH_ROWS
+"""Data at least this long are factorised by the sketched Cholesky QR; shorter ones by TSQR."""
+
+SKETCH_SEED = 20_240_917
+"""Seed of the row sample (fixed: the same data give the same factor)."""
+
+SKETCH_MAX_COND = 1e3
+"""Accept the sketched factor only if cond(R_c) <= 1e3 (relative error ~ eps * 1e6); else TSQR."""
+
 RANK_RTOL = 1e-12
 """The scaled design matrix is called rank-deficient when min |R_ii| / max |R_ii| falls below this."""
 
@@ -179,7 +194,9 @@ class SolveDiagnostics:
     Attributes
     ----------
     solver : str
-        ``"tsqr"`` (least squares) or ``"cutting-plane+proxqp"`` (QP).
+        The factorisation (``"tsqr"``: Householder, or ``"sketched-cholqr"``: randomly
+        preconditioned Cholesky QR, for N >= 65 536), prefixed by ``"cutting-plane+proxqp on"``
+        for the QP; the count of exact LDP fallback solves is appended if there were any.
     iterations : int
         Solves performed (1 = the unconstrained solution already met the bound).
     n_working_constraints : int
@@ -463,82 +480,183 @@ def _predict(v: np.ndarray, theta: np.ndarray, out: np.ndarray | None = None) ->
 
 @dataclass(frozen=True)
 class _Factor:
-    """Column basis and TSQR factors of one data set (see module docstring)."""
+    """Column basis and triangular factors of one data set (see module docstring)."""
 
     n: int
     mid: np.ndarray          # (8,) [V]
     inv_half: np.ndarray     # (8,) [1/V]
-    r: np.ndarray            # (25, 25) upper triangular, R / sqrt(N) of B = [u^3 u^2 u 1]
+    r: np.ndarray            # (25, 25) upper triangular, R / sqrt(N) with B = [u^3 u^2 u 1] = Q R
     c: np.ndarray            # (25,) Q^T y / sqrt(N) [N m]
-    r0c: np.ndarray | None   # (24, 24) R of the centred quiet block of [u^3 u^2 u] (unscaled)
+    pen: np.ndarray | None   # (k, 25): pen^T pen = B_0c^T B_0c (centred quiet block, unscaled)
     n_quiet: int
+    method: str              # "tsqr" or "sketched-cholqr"
 
 
-def _fill_basis(v_chunk: np.ndarray, mid, inv_half, out: np.ndarray) -> None:
-    """out[:, 0:25] = [u^3 u^2 u 1] with u = (v - mid) * inv_half."""
-    u = out[:, 16:24]
-    np.subtract(v_chunk, mid, out=u)
-    u *= inv_half
-    np.multiply(u, u, out=out[:, 8:16])
-    np.multiply(out[:, 8:16], u, out=out[:, 0:8])
-    out[:, 24] = 1.0
+def _fill_basis_t(v_chunk: np.ndarray, mid, inv_half, out_t: np.ndarray) -> None:
+    """Transposed basis rows: ``out_t[0:25, :k] = [u^3; u^2; u; 1]`` with ``u = (v - mid) inv_half``
+    (channels along the rows, samples contiguous: the elementwise steps run on long rows)."""
+    u = out_t[16:24]
+    np.copyto(u, v_chunk.T)
+    u -= mid[:, None]
+    u *= inv_half[:, None]
+    np.multiply(u, u, out=out_t[8:16])
+    np.multiply(out_t[8:16], u, out=out_t[0:8])
+    out_t[24] = 1.0
+
+
+def _basis_rows_raw(v_rows: np.ndarray, mid, inv_half) -> np.ndarray:
+    """``B`` rows (k, 25) for the given voltage rows."""
+    bt = np.empty((N_COEFFICIENTS, v_rows.shape[0]))
+    _fill_basis_t(v_rows, mid, inv_half, bt)
+    return np.ascontiguousarray(bt.T)
 
 
 def _basis_rows(v_rows: np.ndarray, fac: _Factor) -> np.ndarray:
-    b = np.empty((v_rows.shape[0], N_COEFFICIENTS))
-    _fill_basis(v_rows, fac.mid, fac.inv_half, b)
-    return b
+    return _basis_rows_raw(v_rows, fac.mid, fac.inv_half)
+
+
+def _mid_half(v: np.ndarray, rows: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """Centre and half range of each channel [V], over ``rows`` (a sample) or all rows; raises if a
+    channel is constant over all rows."""
+    src = v if rows is None else v[rows]
+    vmin, vmax = src.min(axis=0), src.max(axis=0)
+    half = 0.5 * (vmax - vmin)
+    flat = half <= 1e-12 * np.maximum(1.0, np.abs(vmax))
+    if np.any(flat):
+        if rows is not None:
+            return _mid_half(v)
+        raise ValueError(f"channel(s) {(np.flatnonzero(flat) + 1).tolist()} of v are constant; "
+                         f"the design matrix is rank-deficient")
+    return 0.5 * (vmax + vmin), 1.0 / half
+
+
+def _check_rank(r: np.ndarray, shape) -> None:
+    d = np.abs(np.diag(r))
+    if d.min() < RANK_RTOL * d.max():
+        raise ValueError(f"the design matrix of v (shape {shape}) is numerically rank-deficient "
+                         f"(min/max |R_ii| = {d.min() / d.max():.2e} < {RANK_RTOL:g}); the channels "
+                         f"do not determine {N_COEFFICIENTS} coefficients")
 
 
 def _factor(v: np.ndarray, y: np.ndarray, quiet_mask: np.ndarray | None) -> _Factor:
-    """One streaming pass: TSQR of [B y] and, if given, of the quiet rows [1 B_nc] (B_nc = B[:, :24]).
+    """Factorise ``B = Q R`` and the centred quiet block in one streaming pass over the data.
+
+    Large data (N >= :data:`SKETCH_MIN_N`) go through :func:`_factor_sketched` (randomly
+    preconditioned Cholesky QR, gemm speed); if its accuracy check fails, and for small data, the
+    Householder TSQR of :func:`_factor_tsqr` is used.
+    """
+    n = v.shape[0]
+    if n >= SKETCH_MIN_N:
+        rows = np.sort(np.random.default_rng(SKETCH_SEED).choice(n, size=min(n, SKETCH_ROWS),
+                                                                 replace=False))
+        mid, inv_half = _mid_half(v, rows)       # a sample's range is enough for the scaling
+        fac = _factor_sketched(v, y, quiet_mask, mid, inv_half, rows)
+        if fac is not None:
+            return fac
+    mid, inv_half = _mid_half(v)
+    return _factor_tsqr(v, y, quiet_mask, mid, inv_half)
+
+
+def _factor_tsqr(v, y, quiet_mask, mid, inv_half) -> _Factor:
+    """Householder TSQR of ``[B y]`` and of the quiet rows ``[1 B_nc]`` (``B_nc = B[:, :24]``).
 
     The R factor of ``[1, X]`` carries the centred block in its trailing part: with
     ``R = [[r11, r12], [0, R22]]``, ``R22^T R22 = X^T X - X^T 1 1^T X / n = X_c^T X_c`` (Householder
-    centring, no cancellation), so ``||A_0c theta||`` is obtained without a second pass.
+    centring, no cancellation).
     """
     n = v.shape[0]
-    vmin, vmax = v.min(axis=0), v.max(axis=0)
-    half = 0.5 * (vmax - vmin)
-    const = np.flatnonzero(half <= 1e-12 * np.maximum(1.0, np.abs(vmax)))
-    if const.size:
-        raise ValueError(f"channel(s) {(const + 1).tolist()} of v are constant; the design "
-                         f"matrix is rank-deficient")
-    mid, inv_half = 0.5 * (vmax + vmin), 1.0 / half
-    buf = np.empty((CHUNK_ROWS, N_COEFFICIENTS + 1))
-    qbuf = np.empty((CHUNK_ROWS, N_COEFFICIENTS))
+    buf_t = np.empty((N_COEFFICIENTS + 1, min(n, CHUNK_ROWS)))
     r_aug = np.zeros((0, N_COEFFICIENTS + 1))
     r_q = np.zeros((0, N_COEFFICIENTS))
     n_quiet = 0
     for i in range(0, n, CHUNK_ROWS):
         j = min(n, i + CHUNK_ROWS)
-        k = j - i
-        b = buf[:k]
-        _fill_basis(v[i:j], mid, inv_half, b)
-        b[:, N_COEFFICIENTS] = y[i:j]
-        r_aug = np.linalg.qr(np.vstack([r_aug, b]), mode="r")
+        bt = buf_t[:, :j - i]
+        _fill_basis_t(v[i:j], mid, inv_half, bt)
+        bt[N_COEFFICIENTS] = y[i:j]
+        r_aug = np.linalg.qr(np.vstack([r_aug, bt.T]), mode="r")
         if quiet_mask is not None:
             sel = quiet_mask[i:j]
             kq = int(np.count_nonzero(sel))
             if kq:
-                q = qbuf[:kq]
+                q = np.empty((kq, N_COEFFICIENTS))
                 q[:, 0] = 1.0
-                q[:, 1:] = b[sel, :N_COEFFICIENTS - 1]
+                q[:, 1:] = bt[:N_COEFFICIENTS - 1, sel].T
                 r_q = np.linalg.qr(np.vstack([r_q, q]), mode="r")
                 n_quiet += kq
     r = r_aug[:N_COEFFICIENTS, :N_COEFFICIENTS] / math.sqrt(n)
-    d = np.abs(np.diag(r))
-    if d.min() < RANK_RTOL * d.max():
-        raise ValueError(f"the design matrix of v (shape {v.shape}) is numerically rank-deficient "
-                         f"(min/max |R_ii| = {d.min() / d.max():.2e} < {RANK_RTOL:g}); the channels "
-                         f"do not determine {N_COEFFICIENTS} coefficients")
+    _check_rank(r, v.shape)
     c = r_aug[:N_COEFFICIENTS, N_COEFFICIENTS] / math.sqrt(n)
-    r0c = None
+    pen = None
     if quiet_mask is not None:
-        r0c = np.zeros((N_COEFFICIENTS - 1, N_COEFFICIENTS - 1))
+        pen = np.zeros((N_COEFFICIENTS - 1, N_COEFFICIENTS))
         m = min(r_q.shape[0], N_COEFFICIENTS) - 1
-        r0c[:m] = r_q[1:m + 1, 1:]
-    return _Factor(n=n, mid=mid, inv_half=inv_half, r=r, c=c, r0c=r0c, n_quiet=n_quiet)
+        pen[:m, :N_COEFFICIENTS - 1] = r_q[1:m + 1, 1:]
+    return _Factor(n=n, mid=mid, inv_half=inv_half, r=r, c=c, pen=pen, n_quiet=n_quiet,
+                   method="tsqr")
+
+
+def _factor_sketched(v, y, quiet_mask, mid, inv_half, rows) -> _Factor | None:
+    """Randomly preconditioned Cholesky QR; None if its accuracy check fails.
+
+    1. ``R_s`` = Householder R of the sample ``rows`` of ``B`` (uniform, fixed seed).
+    2. One pass: ``W = B R_s^-1`` chunk by chunk, accumulating ``W^T W``, ``W^T y`` and, for the
+       quiet rows, the shifted sums of ``W`` (shift = mean of the sample's quiet rows, so the centred
+       Gram ``sum (w - mu)(w - mu)^T`` is formed without cancellation).
+    3. ``W^T W = R_c^T R_c`` (Cholesky) and ``R = R_c R_s``, ``Q^T y = R_c^-T W^T y``.
+
+    If the sample represents the rows well, ``W`` has nearly orthogonal columns (cond ~ 1-10), so
+    the Gram matrix loses nothing; the check ``cond(R_c) <= SKETCH_MAX_COND`` (relative error of the
+    factor ~ eps cond(R_c)^2 <= 2e-10) guards against a sample that missed high-leverage rows.
+    This is the randomized Cholesky QR of Fan, Guo & Lin (2021), with a row-sampling sketch.
+    """
+    n = v.shape[0]
+    b_s = _basis_rows_raw(v[rows], mid, inv_half)
+    r_s = np.linalg.qr(b_s, mode="r")
+    d = np.abs(np.diag(r_s))
+    if d.min() < RANK_RTOL * d.max():
+        return None
+    rs_inv_t = scipy.linalg.solve_triangular(r_s, np.eye(N_COEFFICIENTS)).T   # R_s^-T
+    shift = np.zeros((N_COEFFICIENTS, 1))
+    if quiet_mask is not None and np.any(quiet_mask[rows]):
+        shift = (b_s[quiet_mask[rows]] @ rs_inv_t.T).mean(axis=0)[:, None]
+    gw = np.zeros((N_COEFFICIENTS, N_COEFFICIENTS))
+    gy = np.zeros(N_COEFFICIENTS)
+    sq = np.zeros((N_COEFFICIENTS, N_COEFFICIENTS))
+    sq1 = np.zeros(N_COEFFICIENTS)
+    n_quiet = 0
+    buf_t = np.empty((N_COEFFICIENTS, CHUNK_ROWS))
+    wbuf_t = np.empty((N_COEFFICIENTS, CHUNK_ROWS))
+    for i in range(0, n, CHUNK_ROWS):
+        j = min(n, i + CHUNK_ROWS)
+        bt, wt = buf_t[:, :j - i], wbuf_t[:, :j - i]
+        _fill_basis_t(v[i:j], mid, inv_half, bt)
+        np.matmul(rs_inv_t, bt, out=wt)                 # W^T = R_s^-T B^T
+        gw += wt @ wt.T
+        gy += wt @ y[i:j]
+        if quiet_mask is not None:
+            sel = quiet_mask[i:j]
+            if sel.any():
+                wq = wt[:, sel] - shift
+                sq += wq @ wq.T
+                sq1 += wq.sum(axis=1)
+                n_quiet += wq.shape[1]
+    try:
+        r_c = np.linalg.cholesky(gw).T
+    except np.linalg.LinAlgError:
+        return None
+    if np.linalg.cond(r_c) > SKETCH_MAX_COND:
+        return None
+    r = (r_c @ r_s) / math.sqrt(n)
+    _check_rank(r, v.shape)
+    c = scipy.linalg.solve_triangular(r_c, gy, trans="T") / math.sqrt(n)
+    pen = None
+    if quiet_mask is not None:
+        gq = sq - np.outer(sq1, sq1) / n_quiet           # centred Gram of the quiet W rows
+        evals, evecs = np.linalg.eigh(0.5 * (gq + gq.T))
+        pen = (np.sqrt(np.clip(evals, 0.0, None))[:, None] * evecs.T) @ r_s
+    return _Factor(n=n, mid=mid, inv_half=inv_half, r=r, c=c, pen=pen, n_quiet=n_quiet,
+                   method="sketched-cholqr")
 
 
 def _theta_from_phi(phi: np.ndarray, fac: _Factor) -> np.ndarray:
@@ -628,8 +746,10 @@ def fit_least_squares(v: np.ndarray, tau_ref: np.ndarray, *, fs_nm: float = FS_N
 
         minimize_theta  ||A theta - y||_2^2,   A = design_matrix(v),  y = tau_ref
 
-    by a chunked Householder QR of the column-rescaled design matrix (never forming ``A``; the
-    normal equations are not used, so the conditioning is that of ``A``, not its square).
+    by a QR factorisation of the column-rescaled design matrix, streamed in chunks (never forming
+    ``A``): Householder TSQR, or for N >= 65 536 a randomly preconditioned Cholesky QR with an
+    accuracy check that falls back to TSQR. The plain normal equations are not used, so the
+    conditioning is that of ``A``, not of its square.
 
     Parameters
     ----------
@@ -656,7 +776,7 @@ def fit_least_squares(v: np.ndarray, tau_ref: np.ndarray, *, fs_nm: float = FS_N
     theta = _theta_from_z(fac.c, fac)
     ps = _fit_stats(_residual(v, y, theta), y, quiet_mask)
     diag = SolveDiagnostics(
-        solver="tsqr", iterations=1, n_working_constraints=0, n_active_constraints=0,
+        solver=fac.method, iterations=1, n_working_constraints=0, n_active_constraints=0,
         residual_max_nm=ps.residual_max_nm, rms_error_nm=ps.rms_error_nm,
         quiet_std_nm=ps.quiet_std_nm, objective_nm2=ps.rms_error_nm ** 2 * v.shape[0],
         feasibility_tol_nm=0.0, solve_time_s=time.perf_counter() - t0)
@@ -830,9 +950,8 @@ class _QPSolver:
         self.signs = np.zeros(0, dtype=int)
         self.g = np.zeros((0, N_COEFFICIENTS))
         self.n_fallback_solves = 0
-        # P0 with ||A_0c theta||^2 / N = ||P0 z||^2
-        r0c = np.hstack([fac.r0c, np.zeros((N_COEFFICIENTS - 1, 1))])
-        self.p0 = scipy.linalg.solve_triangular(fac.r, r0c.T, trans="T").T / math.sqrt(fac.n)
+        # P0 with ||A_0c theta||^2 / N = ||P0 z||^2  (phi = R^-1 z, R scaled by 1/sqrt(N))
+        self.p0 = scipy.linalg.solve_triangular(fac.r, fac.pen.T, trans="T").T / math.sqrt(fac.n)
 
     def _add(self, idx: np.ndarray, signs: np.ndarray) -> None:
         g = _constraint_rows(self.v, idx, self.fac) * signs[:, None]
@@ -877,8 +996,8 @@ class _QPSolver:
         ps = _fit_stats(r, y, self.quiet_mask)
         n_active = int(np.count_nonzero(np.abs(r) >= e_max_nm - self.tol_nm))
         diag = SolveDiagnostics(
-            solver="cutting-plane+proxqp" + (f" ({self.n_fallback_solves} LDP fallback solves)"
-                                             if self.n_fallback_solves else ""),
+            solver=f"cutting-plane+proxqp on {fac.method}" + (
+                f" ({self.n_fallback_solves} LDP fallback solves)" if self.n_fallback_solves else ""),
             iterations=iterations,
             n_working_constraints=int(self.rows.size), n_active_constraints=n_active,
             residual_max_nm=ps.residual_max_nm, rms_error_nm=ps.rms_error_nm,

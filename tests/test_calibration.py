@@ -115,6 +115,18 @@ def _linprog_min_e_max(v, y) -> float:
     raise AssertionError(f"oracle LP failed: {res.message}")
 
 
+@pytest.fixture(params=["tsqr", "sketched-cholqr"])
+def factorization(request, monkeypatch):
+    """Run a test once per factorisation of the design matrix (both must give the exact answer):
+    Householder TSQR, and the sketched Cholesky QR forced on small data with a 128-row sample."""
+    if request.param == "sketched-cholqr":
+        monkeypatch.setattr(cal, "SKETCH_MIN_N", 0)
+        monkeypatch.setattr(cal, "SKETCH_ROWS", 128)
+    else:
+        monkeypatch.setattr(cal, "SKETCH_MIN_N", 10 ** 12)
+    return request.param
+
+
 # --- Design matrix and masks ---------------------------------------------------------------------------
 def test_design_matrix_columns_are_cubes_squares_linear_then_constant():
     """A = [x^3 x^2 x 1] has 25 columns in the paper's order (Eq. 10)."""
@@ -165,19 +177,20 @@ def test_constant_channel_is_reported_as_rank_deficient():
 
 # --- Least squares ----------------------------------------------------------------------------------------
 @pytest.mark.parametrize("seed", [0, 1, 2])
-def test_least_squares_recovers_known_theta_on_noise_free_data(seed):
+def test_least_squares_recovers_known_theta_on_noise_free_data(seed, factorization):
     """With y = A theta_true exactly, the LS fit returns theta_true (relative 1e-8)."""
     rng = np.random.default_rng(seed)
     v = _independent_channels(500, seed)
     theta_true = rng.normal(size=25) * np.r_[np.full(8, 0.5), np.full(8, 2.0), np.full(8, 5.0), 3.0]
     y = cal.design_matrix(v) @ theta_true
     fit = cal.fit_least_squares(v, y)
+    assert fit.diagnostics.solver == factorization
     np.testing.assert_allclose(fit.theta, theta_true, rtol=0,
                                atol=EXACT_RTOL * np.max(np.abs(theta_true)))
     assert fit.diagnostics.residual_max_nm < PRED_ATOL_NM
 
 
-def test_least_squares_equals_numpy_lstsq_on_unscaled_matrix():
+def test_least_squares_equals_numpy_lstsq_on_unscaled_matrix(factorization):
     """On a small well-conditioned noisy problem, theta equals numpy.linalg.lstsq(A, y)."""
     rng = np.random.default_rng(7)
     v = _independent_channels(200, 7)
@@ -185,6 +198,7 @@ def test_least_squares_equals_numpy_lstsq_on_unscaled_matrix():
     a = cal.design_matrix(v)
     theta_ref = np.linalg.lstsq(a, y, rcond=None)[0]
     fit = cal.fit_least_squares(v, y)
+    assert fit.diagnostics.solver == factorization
     np.testing.assert_allclose(fit.theta, theta_ref, rtol=0,
                                atol=EXACT_RTOL * np.max(np.abs(theta_ref)))
     np.testing.assert_allclose(fit.predict(v), a @ theta_ref, rtol=0, atol=PRED_ATOL_NM * 10)
@@ -201,7 +215,7 @@ def test_predict_equals_design_matrix_times_theta():
 # --- QP: exactness against the full-constraint solve ------------------------------------------------
 @pytest.mark.parametrize("seed", [0, 1, 2])
 @pytest.mark.parametrize("gamma", [0.1, 10.0, 1000.0])
-def test_cutting_plane_qp_equals_full_constraint_proxqp(seed, gamma):
+def test_cutting_plane_qp_equals_full_constraint_proxqp(seed, gamma, factorization):
     """At N = 300 with active bounds, the cutting-plane result equals ProxQP on all 2N rows."""
     v, tau, mask = _realistic(300, seed)
     e_min = _linprog_min_e_max(v, tau)
@@ -212,6 +226,7 @@ def test_cutting_plane_qp_equals_full_constraint_proxqp(seed, gamma):
     a = cal.design_matrix(v)
     a0c = _centred_quiet(a, mask)
     assert fit.diagnostics.n_active_constraints > 0
+    assert fit.diagnostics.solver.endswith(factorization)
     np.testing.assert_allclose(a @ fit.theta, a @ theta_full, rtol=0, atol=FULL_QP_PRED_ATOL_NM)
     j_cp, j_full = _objective(a, tau, a0c, gamma, fit.theta), _objective(a, tau, a0c, gamma,
                                                                         theta_full)
@@ -222,7 +237,8 @@ def test_cutting_plane_qp_equals_full_constraint_proxqp(seed, gamma):
 
 @pytest.mark.parametrize("e_max_nm", [math.inf, 1e6])
 @pytest.mark.parametrize("gamma", [0.0, 3.0, 300.0])
-def test_qp_with_huge_bound_equals_unconstrained_penalised_solution(e_max_nm, gamma):
+def test_qp_with_huge_bound_equals_unconstrained_penalised_solution(e_max_nm, gamma,
+                                                                    factorization):
     """With e_max -> inf, Eq. 17 is min ||A t - y||^2 + gamma ||A_0c t||^2 (closed form)."""
     v, tau, mask = _realistic(2000, 11)
     a = cal.design_matrix(v)
@@ -264,7 +280,7 @@ def test_quiet_penalty_lowers_quiet_variance_for_unequal_channel_noise():
 
 # --- Infeasibility -------------------------------------------------------------------------------------------
 @pytest.mark.parametrize("seed", [0, 5])
-def test_infeasible_bound_raises_with_smallest_feasible_e_max(seed):
+def test_infeasible_bound_raises_with_smallest_feasible_e_max(seed, factorization):
     """e_max below the minimax value raises InfeasibleCalibrationError carrying that value (vs an
     independent HiGHS LP on all rows); at 1.001 times it the QP is feasible and meets the bound."""
     v, tau, mask = _realistic(400, seed)
@@ -285,11 +301,11 @@ def test_infeasible_bound_raises_with_smallest_feasible_e_max(seed):
 @settings(max_examples=12, deadline=None, database=None,
           suppress_health_check=[HealthCheck.too_slow])
 @given(seed=st.integers(0, 2 ** 20), n=st.integers(80, 300), log10_gamma=st.floats(-2.0, 4.0),
-       factor=st.floats(0.3, 3.0), noise_mv=st.floats(0.3, 8.0))
+       factor=st.floats(0.3, 3.0), noise_mv=st.floats(0.3, 8.0), sketched=st.booleans())
 def test_random_channel_sets_meet_the_bound_or_report_the_smallest_one(seed, n, log10_gamma,
-                                                                       factor, noise_mv):
-    """Random channel sets: a feasible e_max is met on every row; an infeasible one raises with the
-    LP's smallest feasible e_max."""
+                                                                       factor, noise_mv, sketched):
+    """Random channel sets, either factorisation: a feasible e_max is met on every row; an
+    infeasible one raises with the LP's smallest feasible e_max."""
     assume(abs(factor - 1.0) > 0.005)                 # ambiguous within the LP's own accuracy
     rng = np.random.default_rng(seed)
     tau = _torque_profile(n, rng, amplitude_nm=float(rng.uniform(5.0, 25.0)),
@@ -301,10 +317,20 @@ def test_random_channel_sets_meet_the_bound_or_report_the_smallest_one(seed, n, 
     e_lp = _linprog_min_e_max(v, tau)
     e_max = factor * e_lp
     gamma = 10.0 ** log10_gamma
+    with pytest.MonkeyPatch.context() as mp:
+        if sketched:
+            mp.setattr(cal, "SKETCH_MIN_N", 0)
+            mp.setattr(cal, "SKETCH_ROWS", 64)
+        _check_bound_or_report(v, tau, mask, gamma, e_max, e_lp, factor)
+
+
+def _check_bound_or_report(v, tau, mask, gamma, e_max, e_lp, factor):
+    """Infeasible (factor < 1): raises with the LP value; feasible: every row meets the bound."""
     if factor < 1.0:
         with pytest.raises(cal.InfeasibleCalibrationError) as info:
             cal.fit_qp(v, tau, gamma=gamma, quiet_mask=mask, e_max_nm=e_max)
-        assert info.value.smallest_feasible_e_max_nm == pytest.approx(e_lp, rel=LP_RTOL, abs=LP_ATOL_NM)
+        assert info.value.smallest_feasible_e_max_nm == pytest.approx(e_lp, rel=LP_RTOL,
+                                                                      abs=LP_ATOL_NM)
     else:
         fit = cal.fit_qp(v, tau, gamma=gamma, quiet_mask=mask, e_max_nm=e_max)
         resid = np.abs(cal.design_matrix(v) @ fit.theta - tau)

@@ -10,7 +10,8 @@ Measured in one process (the full-constraint solves in a child process, for the 
 
 * **floor** -- the plain normal-equations least-squares fit a user would write,
   ``A = design_matrix(v); theta = solve(A^T A, A^T y)``.
-* **LS (ours)** -- :func:`sensor.calibration.fit_least_squares` (chunked TSQR).
+* **LS (ours)** -- :func:`sensor.calibration.fit_least_squares` (TSQR below N = 65 536, sketched
+  Cholesky QR above).
 * **QP (ours)** -- :func:`sensor.calibration.fit_qp` with gamma = the value :func:`select_gamma`
   picks on the N = 1e4 set (default grid, lambda = 1) and gamma = 1e4, each with ``e_max = 0.2 % FS``
   (Eq. 14) and with ``e_max`` 1 % above the smallest feasible value (many active rows).
@@ -22,7 +23,7 @@ Measured in one process (the full-constraint solves in a child process, for the 
   backend also reserves an (n + m) x (n + m) matrix (n = 25, m = 2N): 3.2 GB of address space at
   N = 1e4 (not touched, so not in the RSS), 320 GB at 1e5, which the allocator refuses.
 
-Times are the best of ``--repeats`` runs; memory is the ``tracemalloc`` peak of a separate run
+Times are the best of ``--repeats`` runs after a warm-up call; memory is the ``tracemalloc`` peak of a separate run
 (Python/numpy allocations; the solver's C++ allocations are not seen), relative to the data
 ``v`` (N x 8 float64) + ``tau_ref`` (N float64) + quiet mask (N bool) = 73 N bytes.
 
@@ -96,7 +97,8 @@ def _predict_chunked(theta: np.ndarray, v: np.ndarray, rows: int = 100_000) -> n
 
 
 def best_time(fn, repeats: int):
-    best, out = np.inf, None
+    """Best wall time of ``repeats`` calls after one untimed warm-up call, and the last result."""
+    best, out = np.inf, fn()
     for _ in range(repeats):
         t0 = time.perf_counter()
         out = fn()
@@ -172,7 +174,8 @@ def main(argv=None) -> None:
     args = ap.parse_args(argv)
 
     print(f"bench_calibration  {datetime.date.today()}  {platform.processor() or platform.machine()}"
-          f"  cores={os.cpu_count()}  numpy {np.__version__}  repeats={args.repeats}")
+          f"  cores={os.cpu_count()}  numpy {np.__version__}  repeats={args.repeats}  load average "
+          f"{os.getloadavg()[0]:.2f}")
     v_sel, y_sel = synthetic_calibration_data(10_000)
     sel = cal.select_gamma(v_sel, y_sel, quiet_mask=cal.quiet_segment_mask(y_sel))
     print(f"select_gamma on N = 1e4 (default grid, lambda = {cal.DEFAULT_LAMBDA_WEIGHT}): "
@@ -191,7 +194,8 @@ def main(argv=None) -> None:
         t_ls, ls = best_time(lambda: cal.fit_least_squares(v, y), args.repeats)
         m_ls = peak_bytes(lambda: cal.fit_least_squares(v, y))
         dpred = np.max(np.abs(ls.predict(v) - _predict_chunked(theta_floor, v)))
-        rows.append(("LS ours (TSQR)", t_ls, m_ls, f"|LS - floor| pred {dpred:.1e} N m"))
+        rows.append(("LS ours (fit_least_squares)", t_ls, m_ls,
+                     f"{ls.diagnostics.solver}; |LS - floor| pred {dpred:.1e} N m"))
         settings = [(sel.gamma, cal.E_MAX_NM, "0.2%FS"),
                     (sel.gamma, TIGHT_FACTOR * e_min, f"{TIGHT_FACTOR}*min"),
                     (ACTIVE_GAMMA, cal.E_MAX_NM, "0.2%FS"),
@@ -237,6 +241,7 @@ def main(argv=None) -> None:
         for label, t, mem, note in rows:
             mem_s = f"{mem / 1e6:8.1f} {mem / data_bytes:6.2f}" if mem else f"{'-':>8s} {'-':>6s}"
             print(f"  {label:48s} {t:8.3f} {t / t_floor:7.2f} {mem_s}  {note}", flush=True)
+        print(f"  (load average now {os.getloadavg()[0]:.2f})")
 
 
 if __name__ == "__main__":

@@ -944,6 +944,7 @@ class _QPSolver:
         self.fs_nm = fs_nm
         self.tol_nm = FEASIBILITY_TOL_FRACTION_FS * fs_nm
         self.r_buf = np.empty(v.shape[0])
+        self.abs_buf = np.empty(v.shape[0])
         # working set: row indices, signs (+1: a theta - y <= e, -1: -(a theta - y) <= e), and
         # the signed rows in z coordinates (sign * a_k theta = g_k z)
         self.rows = np.zeros(0, dtype=int)
@@ -974,7 +975,7 @@ class _QPSolver:
             iterations += 1
             theta = _theta_from_z(scipy.linalg.solve_triangular(u, w), fac)
             r = _residual(v, y, theta, out=self.r_buf)
-            excess = np.abs(r)
+            excess = np.abs(r, out=self.abs_buf)
             r_max = float(np.max(excess))
             if r_max <= e_max_nm + self.tol_nm:
                 break
@@ -982,16 +983,15 @@ class _QPSolver:
                 raise RuntimeError(f"QP cutting plane did not converge in "
                                    f"{MAX_CUTTING_PLANE_ITERATIONS} iterations (max residual "
                                    f"{r_max:.6g} N m > e_max {e_max_nm:.6g} N m)")
-            sgn = np.where(r >= 0, 1, -1)
             excess -= e_max_nm + self.tol_nm
-            same = self.signs == sgn[self.rows]
+            same = self.signs == np.where(r[self.rows] >= 0, 1, -1)
             excess[self.rows[same]] = -np.inf           # already constrained with this sign
             new = _select_violated(excess, MAX_ROWS_ADDED_PER_ITERATION)
             if new.size == 0:
                 raise RuntimeError("QP cutting plane stalled: the only violated rows are already in "
                                    "the working set (small-QP accuracy below the feasibility "
                                    f"tolerance {self.tol_nm:.3g} N m)")
-            self._add(new, sgn[new])
+            self._add(new, np.where(r[new] >= 0, 1, -1))
             w = self._solve_working_set(u, d, w, e_max_nm)
         ps = _fit_stats(r, y, self.quiet_mask)
         n_active = int(np.count_nonzero(np.abs(r) >= e_max_nm - self.tol_nm))

@@ -324,7 +324,8 @@ class GammaSelection:
     gamma : float
         The chosen gamma.
     calibration : Calibration
-        The QP calibration at the chosen gamma.
+        The QP calibration at the chosen gamma (its ``diagnostics.solve_time_s`` counts that
+        gamma's cutting plane only; the factorisation is shared by the grid).
     """
 
     gammas: np.ndarray

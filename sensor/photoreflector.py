@@ -152,6 +152,24 @@ class PhotoReflectorArray:
         counts = np.clip(np.rint(v / self._lsb_v), 0, 2**self.params.photoreflector.adc_bits - 1)
         return counts * self._lsb_v
 
+    def read_sample(self, twist_rad: float, tx_nm: float = 0.0, ty_nm: float = 0.0,
+                    temperature_c: float | None = None) -> np.ndarray:
+        """One sample of :meth:`read` for scalar inputs, (8,) [V]: the same model and state, without the
+        per-call array checks (the control loop reads once per tick)."""
+        pr, u = self.params.photoreflector, self.unit
+        half = pr.hysteresis_twist_rad
+        self._play_state = min(max(self._play_state, twist_rad - half), twist_rad + half)
+        x = self.params.flexure.sensing_radius_m * self._play_state * u.signs
+        optical = u.operating_point_v + x * (u.sensitivity_v_per_m + x * (u.quadratic_v_per_m2 + x * u.cubic_v_per_m3))
+        temp = pr.reference_temperature_c if temperature_c is None else temperature_c
+        v = np.exp(u.tempco_per_k * (temp - pr.reference_temperature_c)) * optical
+        v += u.crosstalk_v_per_nm * (tx_nm * np.sin(u.angles_rad) - ty_nm * np.cos(u.angles_rad))
+        v += self._rng.standard_normal(CHANNELS) * u.noise_v
+        if self._filter_state is not None and self._alpha >= 1e-12:
+            v = self._alpha * self._filter_state + (1.0 - self._alpha) * v
+        self._filter_state = v
+        return np.clip(np.rint(v / self._lsb_v), 0, 2**pr.adc_bits - 1) * self._lsb_v
+
     def _filter(self, v: np.ndarray) -> np.ndarray:
         """First-order sensing chain, exact for a signal held over each sample period."""
         if self._alpha < 1e-12:  # the chain settles within a sample: nothing to carry

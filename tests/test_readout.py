@@ -1,0 +1,45 @@
+"""The calibrated sensor in the control loop reads the flexure torque through the channel model."""
+
+import numpy as np
+import pytest
+
+from models.gim8108_testbed.derived import derive
+from sensor.photoreflector import PhotoReflectorArray
+from sensor.readout import TorqueSensorReadout, factory_calibration
+from sim.params import TestbedParams
+
+
+def test_scalar_read_equals_the_array_read_sample_by_sample():
+    """read_sample carries the same hysteresis, noise and ADC state as read: bit-identical voltages."""
+    twist = 0.02 * np.sin(np.linspace(0.0, 12.0, 200))
+    batch = PhotoReflectorArray(seed=3).read(twist, 1.0, -2.0, 31.0)
+    one = PhotoReflectorArray(seed=3)
+    scalar = np.array([one.read_sample(x, 1.0, -2.0, 31.0) for x in twist])
+    np.testing.assert_array_equal(scalar, batch)
+
+
+def test_readout_returns_the_static_torque_within_the_calibration_bound():
+    """At the calibration temperature a held torque T twists the flexure T/K_t; the mean reading is T
+    within the QP's error bound (0.2 % FS = 0.16 N·m)."""
+    params = TestbedParams()
+    k_t = derive(params).flexure_stiffness_nm_per_rad
+    readout = TorqueSensorReadout(params, seed=5)
+    for tau in (-20.0, -1.0, 0.0, 2.0, 15.0):
+        readings = [readout.read(tau / k_t, params.photoreflector.reference_temperature_c) for _ in range(200)]
+        assert np.mean(readings) == pytest.approx(tau, abs=factory_calibration(params).e_max_nm)
+
+
+def test_same_seed_gives_the_same_readings_and_reset_restarts_them():
+    """Two readouts with one seed agree; reset() replays the sequence."""
+    a, b = TorqueSensorReadout(seed=7), TorqueSensorReadout(seed=7)
+    first = [a.read(1e-3, 25.0) for _ in range(20)]
+    assert first == [b.read(1e-3, 25.0) for _ in range(20)]
+    a.reset()
+    assert first == [a.read(1e-3, 25.0) for _ in range(20)]
+    assert first != [TorqueSensorReadout(seed=8).read(1e-3, 25.0) for _ in range(20)]
+
+
+def test_factory_calibration_rejects_an_unknown_method():
+    """The error names the argument and its valid values."""
+    with pytest.raises(ValueError, match="method"):
+        factory_calibration(TestbedParams(), method="svd")

@@ -5,13 +5,18 @@ Written in Python because MuJoCo has no optical sensor. Channel k sits in direct
 surface on opposite sides of its tooth, so a positive twist closes one gap and opens the other (signs +1, -1).
 With δ = l_s · play(θ) the surface displacement [m] under the flexure twist θ:
 
-    V_k = g_k(T) · (V0_k + S_k x + Q_k x² + C_k x³) + X_k·(T_x sin φ_j - T_y cos φ_j) + n_k,   x = s_k δ
+    V_k = g_k(T) · (V0_k + S_k x + Q_k x² + C_k x³ + P_k x⁴) + X_k·(T_x sin φ_j - T_y cos φ_j) + n_k,
+    x = s_k l_s θ_k,   θ_k = (1 - f_k) θ + f_k M(θ)
     g_k(T) = exp(γ_k (T - T_ref))                         (emitter output and detector gain with temperature)
 
 then a first-order sensing chain of the rated bandwidth and the ADC (``adc_bits`` over ``adc_reference_v``).
-``play`` is the hysteresis of the flexure's bolted joints (a play operator of half-width
-``hysteresis_twist_rad``), seen by all channels alike. Per-channel constants of one unit are drawn from the
-parameter ranges with ``unit_seed``; noise is drawn from the run's seed.
+Hysteresis: the reflective target is bolted to the hub, and its joint micro-slips. ``M`` is a Maxwell-slip
+(Prandtl-Ishlinskii) operator, the mean of :data:`SLIP_ELEMENTS` play operators with half-widths spread
+uniformly up to ``slip_twist_max_rad``: its loops close at the turning points (a play operator's do not). Each
+channel sees a fraction f_k of the twist through that joint (the slip is not a pure rotation, so it differs
+from reflector to reflector), which is what lets a least-squares fit trade hysteresis against noise.
+Per-channel constants of one unit are drawn from the parameter ranges with ``unit_seed``; noise is drawn
+from the run's seed.
 """
 
 from __future__ import annotations
@@ -26,6 +31,7 @@ from sim.params import TestbedParams
 
 CHANNELS = 8
 CALIBRATION_SPAN_NM = 25.0  # paper Sec. IV-B: calibration range ±25 N·m; the nonlinearity fractions refer to it
+SLIP_ELEMENTS = 8  # discretisation of the Maxwell-slip operator: loops within 1/8 of their width of the limit
 
 
 @dataclass(frozen=True)
@@ -37,6 +43,8 @@ class SensorUnit:
     sensitivity_v_per_m: np.ndarray  # S_k
     quadratic_v_per_m2: np.ndarray  # Q_k
     cubic_v_per_m3: np.ndarray  # C_k
+    quartic_v_per_m4: np.ndarray  # P_k
+    slip_fraction: np.ndarray  # f_k
     operating_point_v: np.ndarray  # V0_k
     noise_v: np.ndarray  # white-noise std
     crosstalk_v_per_nm: np.ndarray  # X_k
@@ -51,6 +59,9 @@ def draw_unit(params: TestbedParams) -> SensorUnit:
     sens = rng.uniform(pr.sensitivity_min_v_per_m, pr.sensitivity_max_v_per_m, CHANNELS)
     quad = rng.uniform(-1.0, 1.0, CHANNELS) * pr.quadratic_fraction_max * sens / span_m
     cubic = rng.uniform(-1.0, 1.0, CHANNELS) * pr.cubic_fraction_max * sens / span_m**2
+    # one sign for all channels: every TCRT1000 has the same response curve, so its curvature has one sign
+    quartic = rng.uniform(0.0, 1.0, CHANNELS) * pr.quartic_fraction_max * sens / span_m**3
+    slip = rng.uniform(pr.slip_fraction_min, pr.slip_fraction_max, CHANNELS)
     v0 = pr.operating_point_v + rng.uniform(-1.0, 1.0, CHANNELS) * pr.operating_point_spread_v
     # noise levels log-uniformly between the quietest and the noisiest channel, both ends present
     levels = np.exp(np.linspace(math.log(pr.noise_min_v or 1e-12), math.log(pr.noise_max_v or 1e-12), CHANNELS))
@@ -60,18 +71,35 @@ def draw_unit(params: TestbedParams) -> SensorUnit:
     return SensorUnit(
         signs=np.tile([1.0, -1.0], CHANNELS // 2),
         angles_rad=np.repeat(np.arange(CHANNELS // 2) * (math.pi / 2), 2),
-        sensitivity_v_per_m=sens, quadratic_v_per_m2=quad, cubic_v_per_m3=cubic, operating_point_v=v0,
+        sensitivity_v_per_m=sens, quadratic_v_per_m2=quad, cubic_v_per_m3=cubic, quartic_v_per_m4=quartic,
+        slip_fraction=slip, operating_point_v=v0,
         noise_v=noise, crosstalk_v_per_nm=cross, tempco_per_k=tempco)
 
 
 def play_operator(x: np.ndarray, half_width: float, initial: float = 0.0) -> np.ndarray:
     """Backlash (play) hysteresis: y follows x but only once x has moved half_width past it."""
-    y = np.empty_like(x)
-    state = initial
-    for i, xi in enumerate(x):
-        state = min(max(state, xi - half_width), xi + half_width)
-        y[i] = state
+    y, _ = maxwell_slip(x, np.array([half_width]), np.array([initial]))
     return y
+
+
+def slip_half_widths(slip_twist_max_rad: float) -> np.ndarray:
+    """Half-widths of the Maxwell-slip elements [rad]: midpoints of SLIP_ELEMENTS equal slices of (0, max]."""
+    return slip_twist_max_rad * (np.arange(SLIP_ELEMENTS) + 0.5) / SLIP_ELEMENTS
+
+
+def maxwell_slip(x: np.ndarray, half_widths: np.ndarray, state: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Mean of play operators of the given half-widths driven by x: (output (N,), final element states)."""
+    s = np.array(state, dtype=float)
+    x = np.asarray(x, dtype=float)
+    if len(x) == 0:
+        return np.empty(0), s
+    # the state only moves when the input does: step once per run of equal inputs (holds are most of a rig run)
+    starts = np.flatnonzero(np.concatenate(([True], x[1:] != x[:-1])))
+    y_runs = np.empty(len(starts))
+    for j, xi in enumerate(x[starts].tolist()):
+        np.clip(s, xi - half_widths, xi + half_widths, out=s)
+        y_runs[j] = s.mean()
+    return np.repeat(y_runs, np.diff(np.append(starts, len(x)))), s
 
 
 def _as_series(name: str, value: np.ndarray | float, n: int) -> np.ndarray:
@@ -105,7 +133,8 @@ class PhotoReflectorArray:
         self._rng = np.random.default_rng(seed)
         self._alpha = math.exp(-2.0 * math.pi * pr.bandwidth_hz * self.sample_period_s)
         self._lsb_v = pr.adc_reference_v / (2**pr.adc_bits - 1)
-        self._play_state = 0.0
+        self._half_widths = slip_half_widths(pr.slip_twist_max_rad)
+        self._slip_state = np.zeros(SLIP_ELEMENTS)
         self._filter_state: np.ndarray | None = None
 
     @property
@@ -118,14 +147,20 @@ class PhotoReflectorArray:
         twist = np.atleast_1d(np.asarray(twist_rad, dtype=float))
         return self._analog(twist, twist, tx_nm, ty_nm, temperature_c)
 
-    def _analog(self, twist: np.ndarray, played: np.ndarray, tx_nm, ty_nm, temperature_c) -> np.ndarray:
+    def _channel_twist(self, twist: np.ndarray, slipped: np.ndarray) -> np.ndarray:
+        """θ_k = (1 - f_k) θ + f_k M(θ), (N, 8) [rad]."""
+        f = self.unit.slip_fraction
+        return twist[:, None] * (1.0 - f) + slipped[:, None] * f
+
+    def _analog(self, twist: np.ndarray, slipped: np.ndarray, tx_nm, ty_nm, temperature_c) -> np.ndarray:
         n = len(twist)
         pr, u = self.params.photoreflector, self.unit
         tx = _as_series("tx_nm", tx_nm, n)
         ty = _as_series("ty_nm", ty_nm, n)
         temp = _as_series("temperature_c", pr.reference_temperature_c if temperature_c is None else temperature_c, n)
-        x = self.params.flexure.sensing_radius_m * played[:, None] * u.signs[None, :]
-        optical = u.operating_point_v + x * (u.sensitivity_v_per_m + x * (u.quadratic_v_per_m2 + x * u.cubic_v_per_m3))
+        x = self.params.flexure.sensing_radius_m * self._channel_twist(twist, slipped) * u.signs[None, :]
+        optical = u.operating_point_v + x * (u.sensitivity_v_per_m + x * (
+            u.quadratic_v_per_m2 + x * (u.cubic_v_per_m3 + x * u.quartic_v_per_m4)))
         gain = np.exp(u.tempco_per_k[None, :] * (temp[:, None] - pr.reference_temperature_c))
         tilt = tx[:, None] * np.sin(u.angles_rad) - ty[:, None] * np.cos(u.angles_rad)
         return gain * optical + u.crosstalk_v_per_nm * tilt
@@ -144,9 +179,8 @@ class PhotoReflectorArray:
         """
         twist = np.atleast_1d(np.asarray(twist_rad, dtype=float))
         _as_series("twist_rad", twist, len(twist))
-        played = play_operator(twist, self.params.photoreflector.hysteresis_twist_rad, self._play_state)
-        self._play_state = float(played[-1])
-        v = self._analog(twist, played, tx_nm, ty_nm, temperature_c)
+        slipped, self._slip_state = maxwell_slip(twist, self._half_widths, self._slip_state)
+        v = self._analog(twist, slipped, tx_nm, ty_nm, temperature_c)
         v = v + self._rng.standard_normal(v.shape) * self.unit.noise_v
         v = self._filter(v)
         counts = np.clip(np.rint(v / self._lsb_v), 0, 2**self.params.photoreflector.adc_bits - 1)
@@ -157,10 +191,12 @@ class PhotoReflectorArray:
         """One sample of :meth:`read` for scalar inputs, (8,) [V]: the same model and state, without the
         per-call array checks (the control loop reads once per tick)."""
         pr, u = self.params.photoreflector, self.unit
-        half = pr.hysteresis_twist_rad
-        self._play_state = min(max(self._play_state, twist_rad - half), twist_rad + half)
-        x = self.params.flexure.sensing_radius_m * self._play_state * u.signs
-        optical = u.operating_point_v + x * (u.sensitivity_v_per_m + x * (u.quadratic_v_per_m2 + x * u.cubic_v_per_m3))
+        s = self._slip_state
+        np.clip(s, twist_rad - self._half_widths, twist_rad + self._half_widths, out=s)
+        f = u.slip_fraction
+        x = self.params.flexure.sensing_radius_m * (twist_rad * (1.0 - f) + s.mean() * f) * u.signs
+        optical = u.operating_point_v + x * (u.sensitivity_v_per_m + x * (
+            u.quadratic_v_per_m2 + x * (u.cubic_v_per_m3 + x * u.quartic_v_per_m4)))
         temp = pr.reference_temperature_c if temperature_c is None else temperature_c
         v = np.exp(u.tempco_per_k * (temp - pr.reference_temperature_c)) * optical
         v += u.crosstalk_v_per_nm * (tx_nm * np.sin(u.angles_rad) - ty_nm * np.cos(u.angles_rad))

@@ -1,8 +1,8 @@
 """The calibrated joint torque sensor in the control loop: flexure twist and board temperature to N·m.
 
-The factory calibration is what the paper does once per sensor (Sec. IV-A): the calibration protocol of
-:mod:`sensor.protocol` at the reference temperature, fitted by the QP (gamma chosen by the paper's
-criterion) or by least squares. The readout then reads the photo-reflector array once per control tick
+The factory calibration is what the paper does once per sensor (Sec. IV-A): the loading and moment
+protocols of :mod:`sensor.protocol` at the reference temperature, fitted by the QP (gamma chosen by the
+paper's criterion, :func:`sensor.evaluation.calibrate`) or by least squares. The readout then reads the photo-reflector array once per control tick
 with the plant's twist and the TMP117 temperature, so noise, quantisation, hysteresis, bandwidth and
 thermal drift reach the controller.
 """
@@ -14,9 +14,10 @@ from typing import Literal
 
 import numpy as np
 
-from sensor.calibration import Calibration, fit_least_squares, quiet_segment_mask, select_gamma
+from sensor.calibration import Calibration
+from sensor.evaluation import calibrate
 from sensor.photoreflector import PhotoReflectorArray
-from sensor.protocol import calibration_schedule, record
+from sensor.protocol import calibration_schedule, crosstalk_schedule, record
 from sim.params import TestbedParams
 
 # The factory calibration's run seed: the noise of the calibration record, not of later runs.
@@ -40,12 +41,16 @@ def factory_calibration(params: TestbedParams | None = None, method: Literal["ls
     if method not in ("ls", "qp"):
         raise ValueError(f"method = {method!r}: valid values are 'ls', 'qp'")
     params = params or TestbedParams()
-    array = PhotoReflectorArray(params, seed=seed)
-    rec = record(calibration_schedule(array.sample_period_s), array, np.random.default_rng(seed))
-    if method == "ls":
-        return fit_least_squares(rec.voltages_v, rec.tau_reference_nm)
-    quiet = quiet_segment_mask(rec.tau_reference_nm)
-    return select_gamma(rec.voltages_v, rec.tau_reference_nm, quiet_mask=quiet).calibration
+    streams = np.random.SeedSequence(seed).spawn(3)
+
+    def run(stream, schedule):
+        array = PhotoReflectorArray(params, seed=stream.generate_state(1)[0])
+        return record(schedule, array, np.random.default_rng(stream))
+
+    dt = params.simulation.control_period_s
+    rig = calibrate(run(streams[0], calibration_schedule(dt)),
+                    [run(s, crosstalk_schedule(dt, axis)) for s, axis in zip(streams[1:], "xy", strict=True)])
+    return rig.ls if method == "ls" else rig.qp
 
 
 class TorqueSensorReadout:

@@ -222,12 +222,23 @@ class PhotoReflectorParams:
     operating_point_spread_v: float = quantity(
         0.15, "V", "assumed: unit-to-unit spread of the operating point (mounting gap tolerance)", 0.0, 1.0)
     noise_min_v: float = quantity(
-        4.0e-4, "V", "tuned: quietest channel's white-noise std; the 4x spread to noise_max_v makes the "
+        2.4e-4, "V", "tuned: quietest channel's white-noise std; the 4x spread to noise_max_v makes the "
         "LS/QP resolution ratio of the paper (Sec. IV-B) possible", 0.0, 1.0)
-    noise_max_v: float = quantity(1.6e-3, "V", "tuned: noisiest channel's white-noise std", 0.0, 1.0)
-    hysteresis_twist_rad: float = quantity(
-        4.5e-5, "rad", "tuned: half-width of the play in the flexure's bolted joints seen by all channels, "
-        "0.055 N·m at K_t; the paper's hysteresis is 0.139 % FS (Table III)", 0.0, 0.01)
+    noise_max_v: float = quantity(9.6e-4, "V", "tuned: noisiest channel's white-noise std", 0.0, 1.0)
+    slip_twist_max_rad: float = quantity(
+        0.0103, "rad", "assumed: largest breakaway twist of the Maxwell-slip elements of the target's bolted "
+        "joint, half the ±25 N·m calibration span at K_t (12.5 N·m), so loops over the calibration protocol "
+        "close at their turning points and open gradually after a reversal (Fig. 8(d) shows no step)", 0.0, 0.1, low_open=True)
+    slip_fraction_min: float = quantity(
+        0.0045, "1", "tuned: smallest fraction of the twist a channel sees through the slipping joint; the paper's "
+        "hysteresis is 0.139 % FS (Table III)", 0.0, 1.0)
+    slip_fraction_max: float = quantity(
+        0.0135, "1", "tuned: largest such fraction; channels differ because the slip of the reflective target is "
+        "not a pure rotation (eccentric micro-slip seen differently at each reflector)", 0.0, 1.0)
+    quartic_fraction_max: float = quantity(
+        0.004, "1", "tuned: |quartic term| of the optical response up to this fraction of the linear one at the "
+        "calibration span: curvature beyond the cubic basis of Eq. 10, which the paper's 0.111 % FS "
+        "nonlinearity after calibration measures", 0.0, 0.5)
     crosstalk_v_per_nm: float = quantity(
         2.4e-3, "V/(N·m)", "paper Sec. IV-B: about 0.06 V per channel at 25 N·m of T_x or T_y", 0.0, 1.0)
     crosstalk_spread: float = quantity(
@@ -341,7 +352,8 @@ def _validate_cross(p: TestbedParams) -> None:
             f"(valid range [0, {p.flexure.inner_radius_m:g}) m)")
     pr = p.photoreflector
     for low, high, unit in (("sensitivity_min_v_per_m", "sensitivity_max_v_per_m", "V/m"),
-                            ("noise_min_v", "noise_max_v", "V")):
+                            ("noise_min_v", "noise_max_v", "V"),
+                            ("slip_fraction_min", "slip_fraction_max", "")):
         if getattr(pr, low) > getattr(pr, high):
             raise ParameterError(f"photoreflector.{low} = {getattr(pr, low)} {unit} must not exceed "
                                  f"photoreflector.{high} = {getattr(pr, high)} {unit}")

@@ -4,7 +4,8 @@ import numpy as np
 import pytest
 
 from models.gim8108_testbed.derived import derive
-from sensor.photoreflector import CHANNELS, PhotoReflectorArray, draw_unit, play_operator, reference_torque
+from sensor.photoreflector import (CHANNELS, PhotoReflectorArray, draw_unit, maxwell_slip, play_operator,
+                                   reference_torque, slip_half_widths)
 from sim.params import TestbedParams
 
 P = TestbedParams()
@@ -59,16 +60,40 @@ def test_readings_are_adc_quantised_and_noise_has_each_channels_level():
         P.photoreflector.noise_max_v / P.photoreflector.noise_min_v)
 
 
-def test_hysteresis_separates_loading_from_unloading_by_twice_the_play():
-    """Going up then down through the same torque, the output differs by 2·play·l_s·S on every channel."""
-    p = P.replace(photoreflector={"noise_min_v": 0.0, "noise_max_v": 0.0})
+def test_hysteresis_loop_matches_the_maxwell_slip_closed_form_and_closes_at_the_turning_point():
+    """0 -> 25 -> 0 N·m: element i lags by min(A - r_i, x + r_i) - max(0, x - r_i) between the branches; the
+    channels differ by S_k l_s f_k times the mean lag (small-signal), closing at the turning point."""
+    p = P.replace(photoreflector={"noise_min_v": 0.0, "noise_max_v": 0.0, "quadratic_fraction_max": 0.0,
+                                  "cubic_fraction_max": 0.0, "quartic_fraction_max": 0.0})
     sensor = PhotoReflectorArray(p)
-    path = twist(np.concatenate([np.linspace(0, 10, 1001), np.linspace(10, 0, 1001)]))
-    v = sensor.read(path)
-    up, down = v[500], v[1501]  # both at 5 N·m
-    r = p.photoreflector.hysteresis_twist_rad
-    expected = 2 * r * p.flexure.sensing_radius_m * sensor.unit.sensitivity_v_per_m
-    assert np.abs(up - down) == pytest.approx(expected, rel=0.05, abs=2 * sensor.lsb_v)
+    n = 2001
+    path = np.concatenate([np.linspace(0, 25, n), np.linspace(25, 0, n)[1:]])
+    v = sensor.read(twist(path))
+    k_t = derive(p).flexure_stiffness_nm_per_rad
+    r = slip_half_widths(p.photoreflector.slip_twist_max_rad)
+    scale = p.flexure.sensing_radius_m * sensor.unit.sensitivity_v_per_m * sensor.unit.slip_fraction
+    lags = {}
+    for tau in (5.0, 12.5, 24.5):
+        x = tau / k_t
+        lags[tau] = np.mean(np.minimum(25.0 / k_t - r, x + r) - np.maximum(0.0, x - r))
+        i = round(tau / 25.0 * (n - 1))
+        up, down = v[i], v[2 * (n - 1) - i]  # the same torque on both branches
+        assert np.abs(down - up) == pytest.approx(scale * lags[tau], rel=0.02, abs=2 * sensor.lsb_v)
+    assert lags[24.5] < 0.1 * lags[12.5]  # the loop closes at the turning point
+
+
+def test_maxwell_slip_equals_a_plain_loop_over_elements_and_samples():
+    """The run-compressed operator gives the per-sample, per-element loop's output exactly."""
+    rng = np.random.default_rng(1)
+    x = np.repeat(np.cumsum(rng.standard_normal(300)), rng.integers(1, 4, 300))
+    widths = np.array([0.1, 0.5, 2.0])
+    y, state = maxwell_slip(x, widths, np.zeros(3))
+    s, ref = np.zeros(3), []
+    for xi in x:
+        s = np.array([min(max(sj, xi - w), xi + w) for sj, w in zip(s, widths, strict=True)])
+        ref.append(s.mean())
+    np.testing.assert_allclose(y, ref, rtol=0, atol=1e-15)
+    np.testing.assert_allclose(state, s, rtol=0, atol=1e-15)
 
 
 def test_play_operator_follows_only_past_its_half_width():

@@ -107,6 +107,21 @@ def calibrate(torque_record: RigRecord, moment_records: list[RigRecord]) -> RigC
     return RigCalibration(fit_least_squares(v, y), selection.calibration, selection)
 
 
+def resolution_gain(params: TestbedParams | None = None, seed: int = 0) -> tuple[float, float]:
+    """(LS std, QP std) [N·m] on a 10 s no-load record after calibrating: the resolution comparison alone."""
+    params = params or TestbedParams()
+    seeds = dict(zip(_STREAMS, np.random.SeedSequence(seed).spawn(len(_STREAMS)), strict=True))
+    runs = {}
+    for name, schedule_of in (("calibration", calibration_schedule), ("resolution", resolution_schedule),
+                              ("calibration_moment_x", lambda dt: crosstalk_schedule(dt, "x")),
+                              ("calibration_moment_y", lambda dt: crosstalk_schedule(dt, "y"))):
+        array = PhotoReflectorArray(params, seed=seeds[name].generate_state(1)[0])
+        runs[name] = record(schedule_of(array.sample_period_s), array, np.random.default_rng(seeds[name]))
+    rig = calibrate(runs["calibration"], [runs["calibration_moment_x"], runs["calibration_moment_y"]])
+    v = runs["resolution"].voltages_v
+    return (metrics.resolution_3sigma(rig.ls.predict(v)).std_nm, metrics.resolution_3sigma(rig.qp.predict(v)).std_nm)
+
+
 def evaluate_sensor(params: TestbedParams | None = None, seed: int = 0) -> SensorEvaluation:
     """Calibrate and evaluate the sensor unit of ``params`` (``photoreflector.unit_seed``).
 

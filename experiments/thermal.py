@@ -1,0 +1,154 @@
+"""Temperature compensation (paper Sec. IV-C, Eq. 20, Table V).
+
+    python -m experiments.thermal [--seed N] [--json PATH] [--plot DIR] [--params TOML]
+
+The chamber protocol (-10 ... 50 °C, 20 min holds, TMP117 reading) gives the zero drift against
+temperature; the paper's rational function (Eq. 20) is fitted and compared with a 4th-order polynomial
+and a Gaussian; the one-hour drift tests at 0 and 10 N·m are run before and after compensation. The
+mechanics are not stepped (see :mod:`sensor.chamber`): the whole experiment takes about a second.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from experiments.calibration import comparison_rows, format_rows
+from experiments.common import add_params_arg, load_params_arg, write_json
+from sensor.calibration import FS_NM
+from sensor.chamber import TemperatureRecord, chamber_run, drift_run
+from sensor.drift_fit import DriftFit, DriftModelComparison, compare_drift_models
+from sensor.readout import factory_calibration
+from sim.params import TestbedParams
+
+DRIFT_TEST_LOADS_NM = (0.0, 10.0)  # paper Table V
+PAPER_FIGURES = (
+    ("drift_rms_0nm_uncompensated", "V", "1-h drift RMS at 0 N·m, uncompensated", "N·m", 0.0123),
+    ("drift_rms_0nm_compensated", "V", "1-h drift RMS at 0 N·m, compensated", "N·m", 0.0091),
+    ("drift_rms_10nm_uncompensated", "V", "1-h drift RMS at 10 N·m, uncompensated", "N·m", 0.0326),
+    ("drift_rms_10nm_compensated", "V", "1-h drift RMS at 10 N·m, compensated", "N·m", 0.0224),
+    ("drift_per_kelvin_pct_fs", "IV-C", "zero drift per 1 °C", "% FS", 0.014),
+)
+
+
+@dataclass(frozen=True)
+class ThermalExperiment:
+    """Chamber record, drift-model comparison, one-hour records, the figures and comparison rows."""
+
+    chamber: TemperatureRecord = field(repr=False)
+    models: DriftModelComparison
+    drift_tests: dict[float, TemperatureRecord] = field(repr=False)
+    figures_by_name: dict[str, tuple[float, str]]
+    rows: list[dict[str, Any]]
+    figures: list[Path] = field(default_factory=list)
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"rows": self.rows, "drift_models": self.models.to_dict(),
+                "figures_by_name": {k: {"value": v, "unit": u} for k, (v, u) in self.figures_by_name.items()},
+                "figures": [str(p) for p in self.figures]}
+
+
+def compensate(record: TemperatureRecord, fit: DriftFit, reference_c: float) -> np.ndarray:
+    """Sensor output with the zero drift relative to the calibration temperature removed [N·m]."""
+    return record.tau_sensor_nm - (fit.predict(record.tmp117_c) - fit.predict(np.array([reference_c]))[0])
+
+
+def run_thermal(params: TestbedParams | None = None, seed: int = 0, plot_dir: Path | None = None) -> ThermalExperiment:
+    """Chamber protocol, drift fits and the one-hour tests with the factory (QP) calibration."""
+    params = params or TestbedParams()
+    calibration = factory_calibration(params)
+    streams = np.random.SeedSequence(seed).spawn(1 + len(DRIFT_TEST_LOADS_NM))
+    chamber = chamber_run(params, calibration, seed=int(streams[0].generate_state(1)[0]))
+    models = compare_drift_models(chamber.tmp117_c, chamber.tau_sensor_nm)
+    if "rational" not in models.fits:
+        raise RuntimeError(f"the rational zero-drift fit (Eq. 20) failed: {models.failures.get('rational')}")
+    rational = models.fits["rational"]
+    t_ref = params.photoreflector.reference_temperature_c
+    tests = {load: drift_run(params, calibration, load, seed=int(s.generate_state(1)[0]))
+             for load, s in zip(DRIFT_TEST_LOADS_NM, streams[1:], strict=True)}
+    figures: dict[str, tuple[float, str]] = {}
+    for load, rec in tests.items():
+        tag = f"{load:g}nm"
+        figures[f"drift_rms_{tag}_uncompensated"] = (_rms(rec.tau_sensor_nm - rec.tau_reference_nm), "N·m")
+        figures[f"drift_rms_{tag}_compensated"] = (_rms(compensate(rec, rational, t_ref) - rec.tau_reference_nm),
+                                                  "N·m")
+    # The paper: "a maximum temperature change of 1 °C resulted in about 0.014 % FS": the zero drift's
+    # largest change over 1 °C in the one-hour tests' temperature range, from the fitted curve.
+    t_lo = min(r.tmp117_c.min() for r in tests.values())
+    t_hi = max(r.tmp117_c.max() for r in tests.values())
+    grid = np.linspace(t_lo, max(t_hi, t_lo + 1.0), 200)
+    slope = np.max(np.abs(np.gradient(rational.predict(grid), grid)))
+    figures["drift_per_kelvin_pct_fs"] = (100.0 * slope * 1.0 / FS_NM, "% FS")
+    result = ThermalExperiment(chamber, models, tests, figures, comparison_rows(figures, PAPER_FIGURES))
+    if plot_dir is not None:
+        object.__setattr__(result, "figures", plot_thermal(result, t_ref, plot_dir))
+    return result
+
+
+def _rms(x: np.ndarray) -> float:
+    return float(np.sqrt(np.mean(np.square(x))))
+
+
+def plot_thermal(result: ThermalExperiment, reference_c: float, out_dir: Path) -> list[Path]:
+    """Figure like the paper's Fig. 10: drift against temperature with the fits; the one-hour tests."""
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    out_dir.mkdir(parents=True, exist_ok=True)
+    fig, ax = plt.subplots(1, 3, figsize=(15, 4))
+    ch = result.chamber
+    ax[0].plot(ch.tmp117_c, ch.tau_sensor_nm, ".", ms=1, color="0.6", label="chamber samples")
+    grid = np.linspace(ch.tmp117_c.min(), ch.tmp117_c.max(), 300)
+    for name, fit in result.models.fits.items():
+        ax[0].plot(grid, fit.predict(grid), label=f"{name} (RMS {fit.rmse_nm:.4f} N·m)")
+    ax[0].set(xlabel="TMP117 temperature [°C]", ylabel="zero output [N·m]", title="zero drift (chamber)")
+    ax[0].legend(fontsize=7)
+    rational = result.models.fits["rational"]
+    for a, (load, rec) in zip(ax[1:], result.drift_tests.items(), strict=True):
+        minutes = rec.time_s / 60.0
+        a.plot(minutes, rec.tau_sensor_nm, lw=0.3, color="tab:blue", label="uncompensated")
+        a.plot(minutes, compensate(rec, rational, reference_c), lw=0.3, color="tab:red", label="compensated")
+        a.plot(minutes, rec.tau_reference_nm, lw=0.8, color="k", label="MINI85")
+        a.set(xlabel="time [min]", ylabel="torque [N·m]", title=f"one hour at {load:g} N·m")
+        a.legend(fontsize=7)
+    fig.tight_layout()
+    path = out_dir / "thermal_drift.png"
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return [path]
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(prog="python -m experiments.thermal", description=__doc__.splitlines()[0])
+    parser.add_argument("--seed", type=int, default=0, help="seed of every noise draw (default 0)")
+    parser.add_argument("--json", type=Path, metavar="PATH", help="write {rows: [...]} and the drift fits")
+    parser.add_argument("--plot", type=Path, metavar="DIR", help="write PNG figures to DIR")
+    add_params_arg(parser)
+    args = parser.parse_args(argv)
+    params = load_params_arg(parser, args)
+    print("factory calibration, chamber protocol (140 min simulated), two one-hour tests ...", file=sys.stderr)
+    result = run_thermal(params, args.seed, args.plot)
+    print(format_rows(result.rows))
+    print("\nzero-drift models fitted on the chamber record (paper: the rational function fits best):")
+    for name, reason in result.models.failures.items():
+        print(f"  {name:<9} failed: {reason}")
+    print(f"  best: {result.models.best}")
+    for name, fit in result.models.fits.items():
+        print(f"  {name:<9} RMS {fit.rmse_nm:.5f} N·m, max {fit.max_abs_error_nm:.5f} N·m, "
+              f"{len(fit.coefficients)} constants")
+    if args.json:
+        write_json(args.json, result.to_dict())
+        print(f"JSON written to {args.json}")
+    for p in result.figures:
+        print(f"figure: {p}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -19,6 +19,8 @@ from sim.params import TestbedParams
 # Paper Sec. IV-B: test weights to about ±25 N·m, loading and unloading five times in each direction.
 CALIBRATION_LEVELS_NM = (5.0, 10.0, 15.0, 20.0, 25.0)
 CALIBRATION_CYCLES = 5
+PRELOAD_CYCLES = 1  # per direction; a rate-independent slip state is set by one full excursion
+PRELOAD_LABEL = -1  # ``cycle`` label of preload samples
 # Assumed timing of placing weights by hand: a 0.5 s transition, then 2 s at rest on each level, and 5 s of
 # no load between cycles (the quiet segments the QP penalises).
 TRANSITION_S = 0.5
@@ -68,15 +70,24 @@ def _staircase(levels: tuple[float, ...], sign: float, dt: float) -> tuple[list,
 
 
 def calibration_schedule(dt_s: float) -> Schedule:
-    """T_z weights to ±25 N·m, five loading-unloading cycles each way, starting and separated by quiet time."""
+    """T_z weights to ±25 N·m, five loading-unloading cycles each way, starting and separated by quiet time.
+
+    Each direction's five cycles are preceded by :data:`PRELOAD_CYCLES` preload cycle to the full load in that
+    direction (labelled ``cycle = -1``), as force-transducer calibration practice prescribes (ISO 376 preloads
+    before each series and after a change of direction): it sets the joint's slip state so that the five
+    measured cycles repeat.
+    """
     n_quiet = round(QUIET_S / dt_s)
     tz, branch, level, cycle = [0.0] * n_quiet, [0.0] * n_quiet, [0.0] * n_quiet, [0] * n_quiet
-    for k, sign in enumerate([1.0] * CALIBRATION_CYCLES + [-1.0] * CALIBRATION_CYCLES):
+    plan = []
+    for sign, first in ((1.0, 0), (-1.0, CALIBRATION_CYCLES)):
+        plan += [(sign, PRELOAD_LABEL)] * PRELOAD_CYCLES + [(sign, first + k) for k in range(CALIBRATION_CYCLES)]
+    for sign, label in plan:
         v, b, lv = _staircase(CALIBRATION_LEVELS_NM, sign, dt_s)
         tz += v
         branch += b
         level += lv
-        cycle += [k] * len(v)
+        cycle += [label] * len(v)
     tz = np.array(tz)
     zeros = np.zeros_like(tz)
     return Schedule(tz, zeros, zeros.copy(), np.array(branch), np.array(level), np.array(cycle))

@@ -230,10 +230,10 @@ class PhotoReflectorParams:
         "joint, half the ±25 N·m calibration span at K_t (12.5 N·m), so loops over the calibration protocol "
         "close at their turning points and open gradually after a reversal (Fig. 8(d) shows no step)", 0.0, 0.1, low_open=True)
     slip_fraction_min: float = quantity(
-        0.0045, "1", "tuned: smallest fraction of the twist a channel sees through the slipping joint; the paper's "
+        0.0055, "1", "tuned: smallest fraction of the twist a channel sees through the slipping joint; the paper's "
         "hysteresis is 0.139 % FS (Table III)", 0.0, 1.0)
     slip_fraction_max: float = quantity(
-        0.0135, "1", "tuned: largest such fraction; channels differ because the slip of the reflective target is "
+        0.0165, "1", "tuned: largest such fraction; channels differ because the slip of the reflective target is "
         "not a pure rotation (eccentric micro-slip seen differently at each reflector)", 0.0, 1.0)
     quartic_fraction_max: float = quantity(
         0.004, "1", "tuned: |quartic term| of the optical response up to this fraction of the linear one at the "

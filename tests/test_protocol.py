@@ -4,17 +4,20 @@ import numpy as np
 import pytest
 
 from sensor.photoreflector import PhotoReflectorArray
-from sensor.protocol import (CALIBRATION_CYCLES, QUIET_S, calibration_schedule, crosstalk_schedule, record,
+from sensor.protocol import (CALIBRATION_CYCLES, PRELOAD_LABEL, QUIET_S, calibration_schedule, crosstalk_schedule, record,
                              resolution_schedule)
 
 DT = 1e-3
 
 
 def test_calibration_schedule_loads_to_25_nm_five_times_each_way():
-    """Five positive then five negative cycles reaching ±25 N·m, each ending in a quiet segment."""
+    """Five positive then five negative cycles reaching ±25 N·m, each ending in a quiet segment, each
+    direction preceded by a preload cycle to the full load (label -1)."""
     s = calibration_schedule(DT)
     assert s.tz_nm.max() == pytest.approx(25.0) and s.tz_nm.min() == pytest.approx(-25.0)
-    assert len(np.unique(s.cycle)) == 2 * CALIBRATION_CYCLES
+    assert len(np.unique(s.cycle[s.cycle != PRELOAD_LABEL])) == 2 * CALIBRATION_CYCLES
+    preload = s.tz_nm[s.cycle == PRELOAD_LABEL]
+    assert preload.max() == pytest.approx(25.0) and preload.min() == pytest.approx(-25.0)
     for k in range(2 * CALIBRATION_CYCLES):
         in_cycle = s.tz_nm[s.cycle == k]
         assert np.sign(in_cycle[np.abs(in_cycle) > 0]).tolist().count(1 if k < CALIBRATION_CYCLES else -1) > 0

@@ -134,6 +134,12 @@ class PhotoReflectorArray:
         self._alpha = math.exp(-2.0 * math.pi * pr.bandwidth_hz * self.sample_period_s)
         self._lsb_v = pr.adc_reference_v / (2**pr.adc_bits - 1)
         self._half_widths = slip_half_widths(pr.slip_twist_max_rad)
+        # constants of the per-tick path (read_sample)
+        self._sensing_radius_m = self.params.flexure.sensing_radius_m
+        self._reference_c = pr.reference_temperature_c
+        self._sin, self._cos = np.sin(self.unit.angles_rad), np.cos(self.unit.angles_rad)
+        self._max_count = 2**pr.adc_bits - 1
+        self._gain_temperature_c, self._gain = math.nan, np.ones(CHANNELS)
         self._slip_state = np.zeros(SLIP_ELEMENTS)
         self._filter_state: np.ndarray | None = None
 
@@ -190,21 +196,25 @@ class PhotoReflectorArray:
                     temperature_c: float | None = None) -> np.ndarray:
         """One sample of :meth:`read` for scalar inputs, (8,) [V]: the same model and state, without the
         per-call array checks (the control loop reads once per tick)."""
-        pr, u = self.params.photoreflector, self.unit
+        u = self.unit
         s = self._slip_state
         np.clip(s, twist_rad - self._half_widths, twist_rad + self._half_widths, out=s)
         f = u.slip_fraction
-        x = self.params.flexure.sensing_radius_m * (twist_rad * (1.0 - f) + s.mean() * f) * u.signs
+        x = self._sensing_radius_m * (twist_rad * (1.0 - f) + s.mean() * f) * u.signs
         optical = u.operating_point_v + x * (u.sensitivity_v_per_m + x * (
             u.quadratic_v_per_m2 + x * (u.cubic_v_per_m3 + x * u.quartic_v_per_m4)))
-        temp = pr.reference_temperature_c if temperature_c is None else temperature_c
-        v = np.exp(u.tempco_per_k * (temp - pr.reference_temperature_c)) * optical
-        v += u.crosstalk_v_per_nm * (tx_nm * np.sin(u.angles_rad) - ty_nm * np.cos(u.angles_rad))
+        temp = self._reference_c if temperature_c is None else temperature_c
+        if temp != self._gain_temperature_c:  # the TMP117 moves in 7.8 m°C steps: reuse the gains between
+            self._gain_temperature_c = temp
+            self._gain = np.exp(u.tempco_per_k * (temp - self._reference_c))
+        v = self._gain * optical
+        if tx_nm or ty_nm:
+            v += u.crosstalk_v_per_nm * (tx_nm * self._sin - ty_nm * self._cos)
         v += self._rng.standard_normal(CHANNELS) * u.noise_v
         if self._filter_state is not None and self._alpha >= 1e-12:
             v = self._alpha * self._filter_state + (1.0 - self._alpha) * v
         self._filter_state = v
-        return np.clip(np.rint(v / self._lsb_v), 0, 2**pr.adc_bits - 1) * self._lsb_v
+        return np.clip(np.rint(v / self._lsb_v), 0, self._max_count) * self._lsb_v
 
     def _filter(self, v: np.ndarray) -> np.ndarray:
         """First-order sensing chain, exact for a signal held over each sample period."""

@@ -71,6 +71,8 @@ class TorqueSensorReadout:
         self.params = params or TestbedParams()
         self.calibration = calibration or factory_calibration(self.params)
         self.seed = seed
+        th = self.calibration.theta  # [V^3, V^2, V] coefficients per channel, then the offset
+        self._coefficients = (th[0:8].copy(), th[8:16].copy(), th[16:24].copy(), float(th[24]))
         self.reset()
 
     def reset(self) -> None:
@@ -82,8 +84,8 @@ class TorqueSensorReadout:
         """Sensor torque [N·m] for one sample of flexure twist [rad], board temperature [°C], moments [N·m]."""
         v = self._array.read_sample(twist_rad, tx_nm, ty_nm, temperature_c)
         self.voltages_v = v
-        th = self.calibration.theta  # Eq. 10 by Horner: [V^3, V^2, V] coefficients per channel, offset
-        return float(np.dot(((th[0:8] * v + th[8:16]) * v + th[16:24]), v) + th[24])
+        c3, c2, c1, c0 = self._coefficients  # Eq. 10 by Horner
+        return float(np.dot((c3 * v + c2) * v + c1, v) + c0)
 
     def read_plant(self, plant) -> float:
         """Sensor torque [N·m] for the plant's current tick (its flexure twist and TMP117 reading)."""

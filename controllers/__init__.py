@@ -1,0 +1,1 @@
+"""Torque and admittance controllers, their feedback sources, closed-loop runners and tracking figures."""

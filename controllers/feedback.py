@@ -1,0 +1,65 @@
+"""Where a torque loop gets its measured torque: the motor driver's current-based estimate or the calibrated
+optical joint torque sensor.
+
+* ``current``: :attr:`sim.plant.Plant.current_torque_estimate_nm`, N·K_t·i, what a GIM8108 driver reports.
+  It is blind to the gear's friction, backlash and load-dependent losses (it sits before them).
+* ``sensor``: :class:`sensor.readout.TorqueSensorReadout`, the photo-reflector array read once per tick from
+  the flexure's twist and the TMP117 temperature through the factory calibration (QP), with its channel
+  noise, ADC quantisation, hysteresis and thermal drift.
+"""
+
+from __future__ import annotations
+
+from typing import Protocol
+
+from sim.params import TestbedParams
+
+FEEDBACK_KINDS = ("current", "sensor")
+
+
+class TorqueFeedback(Protocol):
+    """A measured torque [N·m], read from the plant once per control tick."""
+
+    kind: str
+
+    def read(self, plant) -> float: ...
+
+    def reset(self) -> None: ...
+
+
+class CurrentFeedback:
+    """The driver's current-based torque estimate N·K_t·i [N·m, output side]."""
+
+    kind = "current"
+
+    def read(self, plant) -> float:
+        return plant.current_torque_estimate_nm
+
+    def reset(self) -> None:
+        """Stateless."""
+
+
+class SensorFeedback:
+    """The calibrated optical torque sensor [N·m] (noise drawn from ``seed``)."""
+
+    kind = "sensor"
+
+    def __init__(self, params: TestbedParams | None = None, seed: int = 0) -> None:
+        from sensor.readout import TorqueSensorReadout
+
+        self.readout = TorqueSensorReadout(params, seed=seed)
+
+    def read(self, plant) -> float:
+        return self.readout.read_plant(plant)
+
+    def reset(self) -> None:
+        self.readout.reset()
+
+
+def make_feedback(kind: str, params: TestbedParams | None = None, seed: int = 0) -> TorqueFeedback:
+    """The feedback source named ``kind`` ('current' or 'sensor'); ``seed`` drives the sensor's noise."""
+    if kind == "current":
+        return CurrentFeedback()
+    if kind == "sensor":
+        return SensorFeedback(params, seed)
+    raise ValueError(f"feedback = {kind!r}: valid values are {', '.join(FEEDBACK_KINDS)}")

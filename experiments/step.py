@@ -1,0 +1,259 @@
+"""Torque steps and disturbance rejection on the locked testbed, current vs sensor feedback (paper Sec. V-A,
+Table VI, Fig. "step").
+
+    python -m experiments.step [--feedback {current,sensor,both}] [--seed N] [--duration S]
+                               [--json PATH] [--plot DIR] [--params TOML]
+
+Protocol (the paper gives the step sizes, the gains and the 1 kHz cycle; the rest is stated here):
+
+* Steps: the rig at rest with the backlash taken up in the step's direction (as after a previous push), the
+  reference zero for ``PRE_STEP_S`` then stepped to 0.05, 0.1 or 0.2 N·m and held for ``STEP_HOLD_S``.
+  The errors are taken over the hold once the loop has settled (from ``SETTLE_S`` after the step): the
+  paper's sensor-feedback RMS errors are the same for the three step sizes (0.0026, 0.0026, 0.0025 N·m),
+  which a window containing the transient would not give, and its current-feedback errors match
+  (1 - reached fraction) x step, a steady-state figure.
+* Disturbance: regulation at 0.5 N·m; after ``PRE_DISTURBANCE_S`` a hand twists the gear's output flange
+  (upstream of the flexure: the sensor and the load cell both see it, the driver's current does not)
+  against the motor, its torque growing at ``DISTURBANCE_RATE_NM_PER_S`` up to ``DISTURBANCE_MAX_NM``.
+  The test stops when regulation is lost (|load-cell torque - reference| > ``REGULATION_LOST_NM``) or at
+  the full disturbance; the RMS error is over the disturbance phase. The paper reports the disturbance at
+  which current-feedback regulation failed (≈ 0.3 N·m) and that sensor feedback held past 2 N·m.
+  Why the flange and not the lever: a torque on the lever goes straight into the load cell (16 700 N·m/rad
+  against 760 N·m/rad through the flexure and the stuck gear), so no controller on the flexure's torque
+  could keep the load cell at 0.5 N·m, which the paper's 0.0058 N·m sensor-feedback error shows it did.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from controllers.feedback import FEEDBACK_KINDS, make_feedback
+from controllers.loop import run_torque_loop
+from controllers.pi import PITorqueController
+from controllers.tracking import TrackingError, tracking_error
+from experiments.common import (add_experiment_args, feedback_kinds, format_rows, load_params_arg,
+                                loadcell_torque_nm, paper_row, write_json)
+from sim.params import TestbedParams
+from sim.plant import Plant
+from sim.runlog import RunLog
+
+# Paper Table VI: RMS error [N·m] against the load-cell torque.
+PAPER_STEP_RMS_NM = {("current", 0.05): 0.0329, ("current", 0.1): 0.0566, ("current", 0.2): 0.0685,
+                     ("sensor", 0.05): 0.0026, ("sensor", 0.1): 0.0026, ("sensor", 0.2): 0.0025}
+PAPER_DISTURBANCE_RMS_NM = {"current": 0.1893, "sensor": 0.0058}
+# Paper Sec. V-A: current feedback reaches ~30, 40, 65 % of the steps (mean values).
+PAPER_REACHED_FRACTION = {0.05: 0.30, 0.1: 0.40, 0.2: 0.65}
+# Paper Sec. V-A: disturbance at which regulation was lost (current) / still held (sensor) [N·m].
+PAPER_DISTURBANCE_LOST_NM = {"current": 0.3, "sensor": 2.0}
+STEPS_NM = (0.05, 0.1, 0.2)
+REGULATED_NM = 0.5
+
+PRE_STEP_S = 0.5  # [s] reference zero before the step
+STEP_HOLD_S = 5.0  # [s] step held
+SETTLE_S = 1.0  # [s] ~10 time constants of the PI's integral action, (1 + Kp)/Ki = 93 ms
+PRE_DISTURBANCE_S = 2.0  # [s] regulation before the hand pushes
+# [N·m/s] inferred, not given: a PI with reference feed-forward follows a ramp disturbance with the steady
+# error rate/Ki, so the paper's sensor-feedback 0.0058 N·m (Table VI) implies a hand pressing harder at about
+# 12 1/s x 0.0058 N·m = 0.07 N·m/s (2.5 N·m in ~36 s).
+DISTURBANCE_RATE_NM_PER_S = 0.07
+DISTURBANCE_MAX_NM = 2.5  # [N·m] "past 2 N·m"
+REGULATION_LOST_NM = 0.25  # [N·m] half the regulated torque: the load cell has clearly left 0.5 N·m
+
+
+@dataclass(frozen=True)
+class StepCase:
+    """One step (or the disturbance test) under one feedback.
+
+    Attributes
+    ----------
+    name : str
+        'step 0.05 N·m', ..., 'disturbance'.
+    feedback : str
+        'current' or 'sensor'.
+    reference_nm : float
+        Step size or regulated torque [N·m].
+    error : TrackingError
+        Over the evaluation window (settled hold; disturbance phase).
+    paper_rms_nm : float
+        Table VI [N·m].
+    disturbance_at_loss_nm : float or None
+        Disturbance torque when regulation was lost [N·m] (None: held to the end; steps: None).
+    disturbance_max_nm : float or None
+        Largest disturbance applied [N·m] (disturbance test only).
+    """
+
+    name: str
+    feedback: str
+    reference_nm: float
+    error: TrackingError
+    paper_rms_nm: float
+    disturbance_at_loss_nm: float | None = None
+    disturbance_max_nm: float | None = None
+    log: RunLog | None = field(default=None, repr=False, compare=False)
+
+    def to_dict(self) -> dict:
+        return {"name": self.name, "feedback": self.feedback, "reference_nm": self.reference_nm,
+                "error": self.error.to_dict(), "paper_rms_nm": self.paper_rms_nm,
+                "disturbance_at_loss_nm": self.disturbance_at_loss_nm,
+                "disturbance_max_nm": self.disturbance_max_nm}
+
+
+@dataclass(frozen=True)
+class StepResult:
+    """Every case of the step experiment; ``rows()`` gives the paper-vs-simulation table."""
+
+    cases: list[StepCase]
+    seed: int
+
+    def rows(self) -> list[dict]:
+        out = []
+        for c in self.cases:
+            label = f"{c.name}, {c.feedback} feedback"
+            out.append(paper_row("VI", f"{label}: RMS error", "N·m", c.paper_rms_nm, c.error.rms_nm))
+            if c.name.startswith("step") and c.feedback == "current":
+                out.append(paper_row("V-A text", f"{label}: reached fraction (mean)", "1",
+                                     PAPER_REACHED_FRACTION[c.reference_nm], c.error.reached_fraction))
+            if c.name == "disturbance":
+                sim = c.disturbance_at_loss_nm if c.disturbance_at_loss_nm is not None else c.disturbance_max_nm
+                what = "lost at" if c.feedback == "current" else "held up to"
+                out.append(paper_row("V-A text", f"{label}: disturbance regulation {what}", "N·m",
+                                     PAPER_DISTURBANCE_LOST_NM[c.feedback], sim))
+        return out
+
+    def to_dict(self) -> dict:
+        return {"seed": self.seed, "cases": [c.to_dict() for c in self.cases], "rows": self.rows()}
+
+
+def _controller(params: TestbedParams) -> PITorqueController:
+    return PITorqueController(output_limit_nm=params.motor.peak_torque_nm,
+                              period_s=params.simulation.control_period_s)
+
+
+def run_step_case(params: TestbedParams, feedback: str, step_nm: float, seed: int = 0,
+                  hold_s: float = STEP_HOLD_S, progress: bool = False) -> StepCase:
+    """One torque step from rest under ``feedback``; errors over the settled part of the hold."""
+    plant = Plant(params, "locked")
+    plant.reset(backlash_side=int(np.sign(step_nm)))
+    dt = params.simulation.control_period_s
+    n_pre, n_hold = round(PRE_STEP_S / dt), round(hold_s / dt)
+    reference = np.concatenate([np.zeros(n_pre), np.full(n_hold, step_nm)])
+    log = run_torque_loop(plant, _controller(params), make_feedback(feedback, params, seed), reference,
+                          progress_label=f"step {step_nm:g} N·m, {feedback}" if progress else None,
+                          meta={"step_nm": step_nm, "seed": seed})
+    window = slice(n_pre + min(round(SETTLE_S / dt), n_hold // 2), None)
+    err = tracking_error(loadcell_torque_nm(log, seed)[window], reference[window])
+    return StepCase(f"step {step_nm:g} N·m", feedback, step_nm, err, PAPER_STEP_RMS_NM[(feedback, step_nm)],
+                    log=log)
+
+
+def disturbance_profile(params: TestbedParams, duration_s: float | None = None) -> np.ndarray:
+    """The hand's torque on the output flange per tick [N·m]: zero, then growing against the motor."""
+    dt = params.simulation.control_period_s
+    ramp_s = DISTURBANCE_MAX_NM / DISTURBANCE_RATE_NM_PER_S
+    total_s = PRE_DISTURBANCE_S + ramp_s if duration_s is None else duration_s
+    t = np.arange(1, round(total_s / dt) + 1) * dt
+    return -np.clip((t - PRE_DISTURBANCE_S) * DISTURBANCE_RATE_NM_PER_S, 0.0, DISTURBANCE_MAX_NM)
+
+
+def run_disturbance_case(params: TestbedParams, feedback: str, seed: int = 0, duration_s: float | None = None,
+                         progress: bool = False) -> StepCase:
+    """Regulation at 0.5 N·m while the flange disturbance grows; stops where regulation is lost."""
+    plant = Plant(params, "locked")
+    plant.reset(backlash_side=1)
+    hub = disturbance_profile(params, duration_s)
+    reference = np.full(len(hub), REGULATED_NM)
+    log = run_torque_loop(plant, _controller(params), make_feedback(feedback, params, seed), reference,
+                          tau_hub_nm=hub, progress_label=f"disturbance, {feedback}" if progress else None,
+                          meta={"regulated_nm": REGULATED_NM, "seed": seed})
+    output = loadcell_torque_nm(log, seed)
+    dt = params.simulation.control_period_s
+    start = min(round(PRE_DISTURBANCE_S / dt), len(hub) // 2)
+    lost = np.flatnonzero(np.abs(output[start:] - REGULATED_NM) > REGULATION_LOST_NM)
+    end = start + int(lost[0]) + 1 if len(lost) else len(hub)
+    at_loss = float(abs(hub[end - 1])) if len(lost) else None
+    err = tracking_error(output[start:end], reference[start:end])
+    return StepCase("disturbance", feedback, REGULATED_NM, err, PAPER_DISTURBANCE_RMS_NM[feedback],
+                    disturbance_at_loss_nm=at_loss, disturbance_max_nm=float(np.abs(hub[:end]).max()), log=log)
+
+
+def run_step(params: TestbedParams | None = None, feedbacks: tuple[str, ...] = FEEDBACK_KINDS, seed: int = 0,
+             duration_s: float | None = None, progress: bool = False) -> StepResult:
+    """The paper's step and disturbance tests under each feedback.
+
+    Parameters
+    ----------
+    params : TestbedParams, optional
+        Parameter set (defaults if None).
+    feedbacks : tuple of {'current', 'sensor'}
+    seed : int
+        Seed of the sensor's noise (each case uses it).
+    duration_s : float, optional
+        Shorten every test to this many seconds (short mode; the paper's figures need the full length).
+    """
+    params = params or TestbedParams()
+    for kind in feedbacks:
+        if kind not in FEEDBACK_KINDS:
+            raise ValueError(f"feedback = {kind!r}: valid values are {', '.join(FEEDBACK_KINDS)}")
+    hold = STEP_HOLD_S if duration_s is None else duration_s
+    cases = []
+    for kind in feedbacks:
+        for step in STEPS_NM:
+            cases.append(run_step_case(params, kind, step, seed, hold, progress))
+        cases.append(run_disturbance_case(params, kind, seed, duration_s, progress))
+    return StepResult(cases, seed)
+
+
+def plot_step(result: StepResult, directory: Path) -> Path:
+    """Figure like the paper's: one panel per test, load-cell torque under each feedback beside the reference."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    names = list(dict.fromkeys(c.name for c in result.cases))
+    fig, axes = plt.subplots(1, len(names), figsize=(4.2 * len(names), 3.4), squeeze=False)
+    colours = {"current": "tab:green", "sensor": "tab:gray"}
+    for ax, name in zip(axes[0], names, strict=True):
+        for c in (c for c in result.cases if c.name == name):
+            log = c.log
+            ax.plot(log["time"], loadcell_torque_nm(log, result.seed), color=colours[c.feedback], lw=0.9,
+                    label=f"load cell, {c.feedback} fb (RMS {c.error.rms_nm:.4f})")
+            if name == "disturbance":
+                ax.plot(log["time"], log["tau_hub"], ":", color=colours[c.feedback], lw=0.8,
+                        label=f"flange disturbance ({c.feedback} run)")
+        ref = next(c for c in result.cases if c.name == name).log
+        ax.plot(ref["time"], ref["tau_ref"], "k--", lw=0.8, label="reference")
+        ax.set(title=name, xlabel="time [s]", ylabel="torque [N·m]")
+        ax.legend(fontsize=6)
+    fig.suptitle("Step and disturbance tests, locked lever (paper Fig. step, Table VI)", fontsize=9)
+    fig.tight_layout()
+    directory.mkdir(parents=True, exist_ok=True)
+    path = directory / "step.png"
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+    return path
+
+
+def main(argv: list[str] | None = None) -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    add_experiment_args(parser)
+    args = parser.parse_args(argv)
+    params = load_params_arg(parser, args)
+    print("running the step and disturbance tests (progress on stderr) ...", file=sys.stderr)
+    result = run_step(params, feedback_kinds(args.feedback), args.seed, args.duration, progress=True)
+    print(format_rows("Step and disturbance tests, locked lever: load-cell torque vs reference (Table VI)",
+                      result.rows()))
+    if args.json:
+        write_json(args.json, result.to_dict())
+        print(f"wrote {args.json}")
+    if args.plot:
+        print(f"figure: {plot_step(result, args.plot)}")
+
+
+if __name__ == "__main__":
+    main()

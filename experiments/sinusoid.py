@@ -4,8 +4,11 @@ Table VII, Fig. "sinwave").
     python -m experiments.sinusoid [--feedback {current,sensor,both}] [--seed N] [--duration S]
                                    [--json PATH] [--plot DIR] [--params TOML]
 
-Protocol: the rig at rest with the backlash taken up positive (as after a previous push), then
-``TEST_DURATION_S`` of reference: 0.05 N·m sine at 0.2 Hz, 0.1 N·m square wave at 1 Hz, 10 N·m sine at
+Protocol: the tests follow the disturbance test in the paper's order, so each starts from the state that
+test leaves: the motor had pushed the lever against the load cell at ``PRECONDITION_NM`` (0.5 N·m), the
+command is ramped back to zero, and the gear stops where its friction holds it, with some torque still locked
+in the flexure and the load cell (``PRECONDITION_HOLD_S`` pushing, ``PRECONDITION_RAMP_S`` ramping down,
+``PRECONDITION_RELEASE_S`` released; open loop, not evaluated). Then ``TEST_DURATION_S`` of reference: 0.05 N·m sine at 0.2 Hz, 0.1 N·m square wave at 1 Hz, 10 N·m sine at
 0.2 Hz, each starting at zero phase. RMS and peak errors of the load-cell reading against the reference
 over the whole run, with the peak error defined in :mod:`controllers.tracking` (|max y - max r|: the
 definition under which the paper's Table VII is consistent). The one-sided actuation of the paper's
@@ -30,9 +33,14 @@ from experiments.common import (add_experiment_args, feedback_kinds, format_rows
                                 loadcell_torque_nm, paper_row, write_json)
 from sim.params import TestbedParams
 from sim.plant import Plant
+from sim.run import run_open_loop
 from sim.runlog import RunLog
 
 TEST_DURATION_S = 10.0  # [s] two periods of the 0.2 Hz sines, ten of the square wave (assumed)
+PRECONDITION_NM = 0.5  # [N·m] the torque of the preceding test (the 0.5 N·m regulation of Sec. V-A)
+PRECONDITION_HOLD_S = 0.5  # [s]
+PRECONDITION_RAMP_S = 0.5  # [s] the command ramped back to zero (an operator ending the test, assumed)
+PRECONDITION_RELEASE_S = 0.5  # [s] command zero; the gear settles where its friction holds it
 
 
 @dataclass(frozen=True)
@@ -96,11 +104,22 @@ class SinusoidResult:
         return {"seed": self.seed, "cases": [c.to_dict() for c in self.cases], "rows": self.rows()}
 
 
-def run_sinusoid_case(params: TestbedParams, feedback: str, waveform: Waveform, seed: int = 0,
-                      duration_s: float = TEST_DURATION_S, progress: bool = False) -> SinusoidCase:
-    """One waveform under ``feedback`` from rest (backlash taken up positive)."""
+def precondition(params: TestbedParams) -> Plant:
+    """The locked rig as the preceding 0.5 N·m test leaves it: pushed, then released (open loop)."""
     plant = Plant(params, "locked")
     plant.reset(backlash_side=1)
+    dt = params.simulation.control_period_s
+    command = np.concatenate([np.full(round(PRECONDITION_HOLD_S / dt), PRECONDITION_NM),
+                              np.linspace(PRECONDITION_NM, 0.0, round(PRECONDITION_RAMP_S / dt)),
+                              np.zeros(round(PRECONDITION_RELEASE_S / dt))])
+    run_open_loop(plant, command, progress=False)
+    return plant
+
+
+def run_sinusoid_case(params: TestbedParams, feedback: str, waveform: Waveform, seed: int = 0,
+                      duration_s: float = TEST_DURATION_S, progress: bool = False) -> SinusoidCase:
+    """One waveform under ``feedback`` from the preconditioned rig (see the module docstring)."""
+    plant = precondition(params)
     dt = params.simulation.control_period_s
     t = np.arange(1, round(duration_s / dt) + 1) * dt
     reference = waveform.reference(t - dt)  # the reference of tick k is applied from the start of tick k

@@ -1,0 +1,237 @@
+"""Admittance control of the free lever pushed by a scripted hand (paper Sec. V-C, Eqs. 30-34, Fig.
+"admittance").
+
+    python -m experiments.admittance [--seed N] [--duration S] [--json PATH] [--plot DIR] [--params TOML]
+
+The external torque comes from the torque sensor, as in the paper (the driver's current cannot see a torque
+applied to the lever), so there is no --feedback choice here.
+
+The hand (assumed; the paper gives no trajectory): a hand holding the lever is an impedance, a spring and
+damper at the joint (``HAND_STIFFNESS_NM_PER_RAD``, ``HAND_DAMPING_NMS_PER_RAD``: 5 N·m/rad is 500 N/m at
+the 0.1 m lever tip, a relaxed grip) pulled along a minimum-jerk path of ``PUSH_ANGLE_RAD``. The slow push
+takes ``SLOW_PUSH_S``, the fast one ``FAST_PUSH_S``. Through the virtual damper B_d the slow push needs a low
+torque and the lever follows the hand; the fast push needs a high torque and the lever lags: the
+controller resists it, as the paper's Fig. (a)/(b) show ("mild" against "pronounced" damping).
+
+Figures: the lever's angle lag behind the hand at its largest, the peak hand torque and velocity, their ratio
+(the damping felt by the hand, N·m·s/rad), and how closely the lever's velocity follows the virtual
+dynamics' ω_r (RMS of ω - ω_r over the peak of ω_r).
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from controllers.admittance import AdmittanceController
+from controllers.feedback import make_feedback
+from controllers.loop import run_admittance_loop
+from experiments.common import add_experiment_args, load_params_arg, write_json
+from sim.params import TestbedParams
+from sim.plant import Plant
+from sim.runlog import RunLog
+
+HAND_STIFFNESS_NM_PER_RAD = 5.0  # assumed: 500 N/m at the 0.1 m tip, a relaxed human grip
+HAND_DAMPING_NMS_PER_RAD = 0.05  # assumed: 5 N·s/m at the tip
+PUSH_ANGLE_RAD = 0.5  # [rad] the hand's travel (~29°)
+SLOW_PUSH_S = 4.0  # [s]
+FAST_PUSH_S = 0.4  # [s]
+REST_BEFORE_S = 0.3  # [s] hand still before the push
+REST_AFTER_S = 1.5  # [s] hand still after the push
+
+
+@dataclass(frozen=True)
+class ScriptedHand:
+    """A hand moving along a minimum-jerk path, coupled to the lever by a spring and damper.
+
+    torque = k_h (θ_hand - θ) + b_h (ω_hand - ω) [N·m] on the lever at tick k.
+    """
+
+    push_s: float
+    angle_rad: float = PUSH_ANGLE_RAD
+    stiffness_nm_per_rad: float = HAND_STIFFNESS_NM_PER_RAD
+    damping_nms_per_rad: float = HAND_DAMPING_NMS_PER_RAD
+    period_s: float = 1e-3
+    before_s: float = REST_BEFORE_S
+    after_s: float = REST_AFTER_S
+
+    @property
+    def n_ticks(self) -> int:
+        return round((self.before_s + self.push_s + self.after_s) / self.period_s)
+
+    def path(self, t_s: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Hand angle [rad] and velocity [rad/s] at times ``t_s`` (minimum jerk)."""
+        s = np.clip((np.asarray(t_s) - self.before_s) / self.push_s, 0.0, 1.0)
+        angle = self.angle_rad * (10 * s**3 - 15 * s**4 + 6 * s**5)
+        velocity = self.angle_rad * (30 * s**2 - 60 * s**3 + 30 * s**4) / self.push_s
+        return angle, velocity
+
+    def torque_nm(self, k: int, angle_rad: float, velocity_rad_s: float) -> float:
+        hand_angle, hand_velocity = self.path(np.array([k * self.period_s]))
+        return float(self.stiffness_nm_per_rad * (hand_angle[0] - angle_rad)
+                     + self.damping_nms_per_rad * (hand_velocity[0] - velocity_rad_s))
+
+
+@dataclass(frozen=True)
+class PushOutcome:
+    """One push: how the lever moved and what the hand felt.
+
+    Attributes
+    ----------
+    name : str
+    push_s : float
+        Duration of the hand's motion [s].
+    peak_hand_torque_nm : float
+    peak_velocity_rad_s : float
+        Of the lever.
+    felt_damping_nms_per_rad : float
+        peak hand torque / peak lever velocity.
+    max_lag_rad : float
+        Largest hand angle minus lever angle.
+    final_angle_rad : float
+        Lever angle at the end [rad] (the hand ends at ``PUSH_ANGLE_RAD``).
+    velocity_tracking : float
+        RMS(ω - ω_r) / max |ω_r| [-]: how closely the lever follows the virtual mass-damper.
+    """
+
+    name: str
+    push_s: float
+    peak_hand_torque_nm: float
+    peak_velocity_rad_s: float
+    felt_damping_nms_per_rad: float
+    max_lag_rad: float
+    final_angle_rad: float
+    velocity_tracking: float
+    log: RunLog | None = field(default=None, repr=False, compare=False)
+
+    def to_dict(self) -> dict:
+        d = asdict(self)
+        d.pop("log")
+        return d
+
+
+@dataclass(frozen=True)
+class AdmittanceResult:
+    """Slow and fast push. ``follows_slow``: the lever ends within 10 % of the hand's travel and lags it by
+    less than 20 % of it; ``resists_fast``: the fast push needs a larger hand torque and leaves a larger lag."""
+
+    pushes: list[PushOutcome]
+    seed: int
+
+    @property
+    def follows_slow(self) -> bool:
+        slow = self.pushes[0]
+        return (abs(slow.final_angle_rad - PUSH_ANGLE_RAD) < 0.1 * PUSH_ANGLE_RAD
+                and slow.max_lag_rad < 0.2 * PUSH_ANGLE_RAD)
+
+    @property
+    def resists_fast(self) -> bool:
+        slow, fast = self.pushes
+        return fast.peak_hand_torque_nm > 3 * slow.peak_hand_torque_nm and fast.max_lag_rad > 3 * slow.max_lag_rad
+
+    def to_dict(self) -> dict:
+        return {"seed": self.seed, "pushes": [p.to_dict() for p in self.pushes],
+                "follows_slow": self.follows_slow, "resists_fast": self.resists_fast}
+
+
+def run_push(params: TestbedParams, push_s: float, name: str, seed: int = 0, duration_s: float | None = None,
+             progress: bool = False) -> PushOutcome:
+    """One push of the scripted hand on the free lever under admittance control."""
+    dt = params.simulation.control_period_s
+    hand = ScriptedHand(push_s, period_s=dt)
+    if duration_s is not None:  # short mode: the same push, cut short
+        hand = ScriptedHand(min(push_s, duration_s), period_s=dt, before_s=min(REST_BEFORE_S, duration_s / 4),
+                            after_s=min(REST_AFTER_S, duration_s / 4))
+    plant = Plant(params, "free")
+    controller = AdmittanceController(period_s=dt, output_limit_nm=params.motor.peak_torque_nm)
+    log = run_admittance_loop(plant, controller, make_feedback("sensor", params, seed), hand,
+                              progress_label=f"{name} push" if progress else None,
+                              meta={"push_s": hand.push_s, "seed": seed})
+    hand_angle, _ = hand.path(log["time"])
+    omega, omega_ref = log["qd_motor"], log["omega_ref"]
+    peak_torque = float(np.abs(log["tau_ext"]).max())
+    peak_velocity = float(np.abs(log["qd"]).max())
+    return PushOutcome(name, hand.push_s, peak_torque, peak_velocity,
+                       peak_torque / peak_velocity if peak_velocity > 0 else float("inf"),
+                       float(np.max(hand_angle - log["q"])), float(log["q"][-1]),
+                       float(np.sqrt(np.mean((omega - omega_ref) ** 2)) / max(np.abs(omega_ref).max(), 1e-12)),
+                       log=log)
+
+
+def run_admittance(params: TestbedParams | None = None, seed: int = 0, duration_s: float | None = None,
+                   progress: bool = False) -> AdmittanceResult:
+    """The slow and the fast push (``duration_s`` caps each push: short mode)."""
+    params = params or TestbedParams()
+    return AdmittanceResult([run_push(params, SLOW_PUSH_S, "slow", seed, duration_s, progress),
+                             run_push(params, FAST_PUSH_S, "fast", seed, duration_s, progress)], seed)
+
+
+def format_result(result: AdmittanceResult) -> str:
+    lines = ["Admittance control (M_d = 0.03 kg·m², B_d = 0.6 N·m·s/rad, K_d = 0), free lever, scripted hand",
+             f"{'push':5s} {'time [s]':>8s} {'peak hand torque [N·m]':>23s} {'peak velocity [rad/s]':>22s} "
+             f"{'felt damping [N·m·s/rad]':>25s} {'max lag [rad]':>14s} {'final [rad]':>11s} "
+             f"{'RMS(ω-ω_r)/max ω_r':>19s}"]
+    for p in result.pushes:
+        lines.append(f"{p.name:5s} {p.push_s:8.2f} {p.peak_hand_torque_nm:23.3f} {p.peak_velocity_rad_s:22.3f} "
+                     f"{p.felt_damping_nms_per_rad:25.3f} {p.max_lag_rad:14.4f} {p.final_angle_rad:11.3f} "
+                     f"{p.velocity_tracking:19.3f}")
+    lines.append(f"paper: the lever follows a slow push (sim: {'yes' if result.follows_slow else 'NO'}) and resists "
+                 f"a fast one (sim: {'yes' if result.resists_fast else 'NO'})")
+    return "\n".join(lines)
+
+
+def plot_admittance(result: AdmittanceResult, directory: Path) -> Path:
+    """Figure like the paper's: per push, hand torque, lever angle and velocity against the hand's path."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, axes = plt.subplots(3, 2, figsize=(10, 7), sharex="col")
+    for col, p in enumerate(result.pushes):
+        log = p.log
+        t = log["time"]
+        hand = ScriptedHand(p.push_s, period_s=float(t[1] - t[0]) if len(t) > 1 else 1e-3)
+        hand_angle, hand_velocity = hand.path(t)
+        axes[0][col].plot(t, log["tau_ext"], label="hand torque")
+        axes[0][col].plot(t, -log["tau_sensor"], "--", lw=0.8, label="τ_ext from the sensor")
+        axes[0][col].set(title=f"{p.name} push ({p.push_s:g} s)", ylabel="torque [N·m]")
+        axes[1][col].plot(t, hand_angle, "k--", lw=0.8, label="hand path")
+        axes[1][col].plot(t, log["q"], label="lever")
+        axes[1][col].set(ylabel="angle [rad]")
+        axes[2][col].plot(t, hand_velocity, "k--", lw=0.8, label="hand path")
+        axes[2][col].plot(t, log["qd"], label="lever")
+        axes[2][col].plot(t, log["omega_ref"], ":", label="ω_r (virtual)")
+        axes[2][col].set(ylabel="velocity [rad/s]", xlabel="time [s]")
+        for ax in axes[:, col]:
+            ax.legend(fontsize=6)
+    fig.suptitle("Admittance control, free lever (paper Fig. admittance)", fontsize=9)
+    fig.tight_layout()
+    directory.mkdir(parents=True, exist_ok=True)
+    path = directory / "admittance.png"
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+    return path
+
+
+def main(argv: list[str] | None = None) -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    add_experiment_args(parser, feedback=False)
+    args = parser.parse_args(argv)
+    params = load_params_arg(parser, args)
+    print("running the slow and fast pushes (progress on stderr) ...", file=sys.stderr)
+    result = run_admittance(params, args.seed, args.duration, progress=True)
+    print(format_result(result))
+    if args.json:
+        write_json(args.json, result.to_dict())
+        print(f"wrote {args.json}")
+    if args.plot:
+        print(f"figure: {plot_admittance(result, args.plot)}")
+
+
+if __name__ == "__main__":
+    main()

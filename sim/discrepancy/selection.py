@@ -1,0 +1,137 @@
+"""Forward selection of effects with a stated significance rule.
+
+Each round fits every remaining identifiable candidate (its parameters, jointly with the rig's free baseline
+parameters and nuisances) on the fit part, then scores it on the held-out part. The best candidate is
+accepted only if **both** hold:
+
+1. information criterion: ``ΔBIC = Σ_c n_c·ln(RSS_c,after / RSS_c,before) + k·ln(n) < -min_ic_drop``, with
+   ``RSS_c`` the held-out residual sum of squares of channel ``c``, ``n_c`` its number of *independent*
+   samples (held-out samples x 2·f_c/f_s: the residuals are low-passed at f_c), ``n = Σ n_c`` and ``k`` the
+   number of the effect's fitted parameters;
+2. minimum relative gain: some channel's held-out RMSE falls by at least ``min_relative_gain``.
+
+Rounds repeat with the extended model until no candidate passes; none passing at all is the verdict
+"no significant discrepancy". Candidate fits of a round run in parallel processes (``config.workers``).
+"""
+
+from __future__ import annotations
+
+import math
+from concurrent.futures import ProcessPoolExecutor
+from dataclasses import dataclass
+
+import numpy as np
+
+from sim.discrepancy.effects import EFFECTS
+from sim.discrepancy.fit import FitOutcome, effect_starts, fit_keys
+from sim.discrepancy.model import Surrogate
+
+MAX_ROUNDS = 5  # at most this many effects are added to one model
+
+
+@dataclass(frozen=True)
+class ChannelScore:
+    """Held-out RMSE of each channel [channel units] and independent sample counts."""
+
+    rmse: dict[str, float]
+    independent_samples: dict[str, float]
+
+    def rss(self, channel: str) -> float:
+        return self.rmse[channel] ** 2 * self.independent_samples[channel]
+
+
+@dataclass(frozen=True)
+class CandidateScore:
+    """One candidate of a round: its fit and its held-out score against the current model."""
+
+    effect: str
+    fit: FitOutcome
+    score: ChannelScore
+    delta_bic: float
+    gains: dict[str, float]  # relative held-out RMSE drop per channel [1]
+    passes: bool
+    seconds: float
+
+    @property
+    def best_channel(self) -> str:
+        return max(self.gains, key=self.gains.get)
+
+    def to_dict(self) -> dict:
+        return {"effect": self.effect, "delta_bic": self.delta_bic, "gains": self.gains, "passes": self.passes,
+                "parameters": {k: self.fit.theta[k] for k in EFFECTS[self.effect].keys},
+                "seconds": self.seconds}
+
+
+def held_out_score(surrogate: Surrogate, theta: dict[str, float]) -> ChannelScore:
+    """Held-out RMSE per channel and its independent sample count."""
+    data = surrogate.data
+    rmse, count = {}, {}
+    for channel, r in surrogate.residuals(theta).items():
+        sel = r[data.held]
+        sel = sel[np.isfinite(sel)]
+        rmse[channel] = float(np.sqrt(np.mean(sel**2))) if len(sel) else float("nan")
+        count[channel] = len(sel) * data.band_fraction
+    return ChannelScore(rmse, count)
+
+
+def compare(before: ChannelScore, after: ChannelScore, n_params: int) -> tuple[float, dict[str, float]]:
+    """(ΔBIC, relative gain per channel) of ``after`` against ``before`` on the held-out part."""
+    delta, gains, total = 0.0, {}, 0.0
+    for channel, rmse_before in before.rmse.items():
+        rmse_after = after.rmse[channel]
+        n = before.independent_samples[channel]
+        if not (n > 0 and rmse_before > 0 and math.isfinite(rmse_after)):
+            continue
+        total += n
+        delta += n * math.log(max(rmse_after, 1e-300) ** 2 / rmse_before**2)
+        gains[channel] = 1.0 - rmse_after / rmse_before
+    delta += n_params * math.log(max(total, 1.0))
+    return delta, gains
+
+
+# ------------------------------------------------------------------------------ worker process (parallel fits)
+_WORKER: dict[str, Surrogate] = {}
+
+
+def _init_worker(surrogate: Surrogate) -> None:
+    _WORKER["surrogate"] = surrogate
+
+
+def fit_candidate(surrogate: Surrogate, effect: str, theta: dict[str, float], free: tuple[str, ...],
+                  scales: dict[str, float], before: ChannelScore, config_gain: float, config_ic: float) -> CandidateScore:
+    """Fit one effect (with the free baseline parameters) and score it against ``before``."""
+    import time
+
+    start = time.perf_counter()
+    starts, held = effect_starts(effect, theta, surrogate)
+    keys = tuple(k for k in EFFECTS[effect].keys if k not in held) + tuple(k for k in free if k not in EFFECTS[effect].keys)
+    outcome = fit_keys(surrogate, theta, keys, scales, starts)
+    after = held_out_score(surrogate, outcome.theta)
+    n_params = len(EFFECTS[effect].keys)
+    delta, gains = compare(before, after, n_params)
+    passes = delta < -config_ic and bool(gains) and max(gains.values()) >= config_gain
+    return CandidateScore(effect, outcome, after, delta, gains, passes, time.perf_counter() - start)
+
+
+def _fit_in_worker(args: tuple) -> CandidateScore:
+    return fit_candidate(_WORKER["surrogate"], *args)
+
+
+def run_round(surrogate: Surrogate, candidates: list[str], theta: dict[str, float], free: tuple[str, ...],
+              scales: dict[str, float], before: ChannelScore, pool: ProcessPoolExecutor | None) -> list[CandidateScore]:
+    """Fit and score every candidate (in ``pool`` if given), best ΔBIC first."""
+    cfg = surrogate.config
+    args = [(effect, theta, free, scales, before, cfg.min_relative_gain, cfg.min_ic_drop) for effect in candidates]
+    if pool is None:
+        scores = [fit_candidate(surrogate, *a) for a in args]
+    else:
+        scores = list(pool.map(_fit_in_worker, args))
+    return sorted(scores, key=lambda s: s.delta_bic)
+
+
+def make_pool(surrogate: Surrogate) -> ProcessPoolExecutor | None:
+    """A process pool holding the surrogate once per worker (None for ``workers == 1``)."""
+    if surrogate.config.workers <= 1:
+        return None
+    return ProcessPoolExecutor(max_workers=surrogate.config.workers, initializer=_init_worker,
+                               initargs=(surrogate,))

@@ -1,0 +1,180 @@
+"""MuJoCo runs of a rig with its effects: the testbed plant, or a rigid joint built here.
+
+Effects reach MuJoCo as natively as MuJoCo allows:
+
+- friction levels, Stribeck, viscous, presliding, load-dependent friction, backlash, command delay: the
+  testbed's own parameters (``sim.params``), so the plant is rebuilt with them;
+- cogging: the dcmotor's native ``cogging`` (biasprm[0:3] = amplitude, poles, phase on the motor shaft angle),
+  written into the compiled model: amplitude/N at the output, period 2π/(N·poles) of the output angle;
+- torque-constant roll-off: the command is mapped before it reaches the plant (a memoryless map of the command
+  is what a saturating torque constant does to a torque-commanded drive);
+- asymmetric friction: a constant motor torque -Δ/2 (levels F_c ± Δ/2 by direction are exactly a constant torque
+  opposing positive motion); MuJoCo's LuGre is symmetric;
+- gravity: a torque on the lever (``external`` actuator) from the lever angle of the previous tick (one control
+  tick late: gravity changes slowly against 1 ms);
+- sensor effects act on the sensor reading, not the mechanics (applied in :mod:`sim.discrepancy.synth`).
+
+A rigid joint is a one-body MJCF: ``frictionloss`` (Coulomb with stick), ``damping`` (viscous), a ``motor``
+actuator with the effort gain and the command ``delay``; gravity and cogging through a second actuator
+(one tick late, as above). MuJoCo has no Stribeck curve on a plain joint, so a rigid joint with
+breakaway > coulomb is not simulated here (the analysis still models it).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import mujoco
+import numpy as np
+
+from sim.discrepancy.rig import Rig
+from sim.plant import SIGNAL_UNITS, Plant
+
+RIGID_SUBSTEPS = 5  # rigid joint: physics steps per control tick (no stiff mode; the dry-friction row's time
+# constant is two physics steps, as the testbed's tuned rows)
+RIGID_FRICTION_IMPEDANCE = 0.9999  # solimpfriction d0 = dwidth of the rigid joint's dry friction (MuJoCo's max)
+CONTROL_PERIOD_S = 1e-3  # rigid joint: the 1 kHz control rate of the project's logs
+
+# command(k, state) -> effort command [N·m | N]; state holds the signals of the previous tick (SI)
+CommandFn = Callable[[int, dict[str, float]], float]
+
+
+@dataclass(frozen=True)
+class SimulatedRun:
+    """True signals of a run, one row per control tick; ``columns`` by name with ``units``."""
+
+    columns: dict[str, np.ndarray]
+    units: dict[str, str]
+
+
+def _effect(rig: Rig, name: str) -> dict[str, float] | None:
+    for effect in rig.effects:
+        if effect.name == name:
+            return effect.parameters
+    return None
+
+
+def command_map(rig: Rig) -> Callable[[float], float]:
+    """Effort command -> what the drive delivers before its dynamics (roll-off, asymmetry offset)."""
+    rolloff = _effect(rig, "torque_constant_nonlinearity")
+    asym = _effect(rig, "asymmetric_friction")
+    peak = rig.params.motor.peak_torque_nm if rig.model == "testbed" else rig.rigid.get("peak_effort", math.inf)
+    c = rolloff["torque_rolloff"] if rolloff else 0.0
+    offset = -0.5 * asym["asymmetry"] if asym else 0.0
+    if c and not math.isfinite(peak):
+        raise ValueError("torque_constant_nonlinearity needs the rig's peak effort (peak_effort)")
+
+    def mapped(u: float) -> float:
+        if c:
+            u = min(max(u, -peak), peak)
+            u = u * (1.0 - c * (u / peak) ** 2)
+        return u + offset
+
+    return mapped
+
+
+def testbed_plant(rig: Rig) -> Plant:
+    """The testbed plant of a rig, with native cogging written into the compiled model."""
+    assert rig.model == "testbed" and rig.params is not None
+    plant = Plant(rig.params, rig.fixture)
+    cog = _effect(rig, "cogging")
+    if cog:
+        n = rig.params.motor.gear_ratio
+        poles = 2.0 * math.pi / (n * cog["cogging_period"])
+        if abs(poles - round(poles)) > 1e-6 * poles or round(poles) < 1:
+            raise ValueError(f"cogging_period = {cog['cogging_period']} rad is not 2π/(N·poles) for an integer "
+                             f"pole count (N = {n:g}); MuJoCo's dcmotor cogging needs one")
+        motor = plant.model.actuator("motor").id
+        plant.model.actuator_biasprm[motor, 0:3] = (cog["cogging_amplitude"] / n, round(poles), cog["cogging_phase"])
+    return plant
+
+
+def run_testbed(rig: Rig, command: CommandFn, n_ticks: int, *, backlash_side: int = 0) -> SimulatedRun:
+    """Run the testbed of ``rig`` for ``n_ticks`` with a command function; true signals of every tick."""
+    plant = testbed_plant(rig)
+    plant.reset(backlash_side=backlash_side)
+    cmd_map = command_map(rig)
+    grav = _effect(rig, "gravity")
+    names = list(SIGNAL_UNITS)
+    out = np.empty((n_ticks, len(names)))
+    times = np.empty(n_ticks)
+    state = {"q": 0.0, "qd": 0.0, "q_motor": 0.0, "tau_flexure": 0.0, "tau_current_estimate": 0.0,
+             "force_loadcell": 0.0}
+    row = np.empty(len(names))
+    index = {name: i for i, name in enumerate(names)}
+    for k in range(n_ticks):
+        u = command(k, state)
+        tau_ext = 0.0
+        if grav:
+            tau_ext = -grav["gravity_amplitude"] * math.sin(state["q"] - grav["gravity_angle"])
+        plant.step(cmd_map(u), tau_ext)
+        plant.read_signals(row)
+        row[index["tau_cmd"]] = u  # the log holds the command as sent, not as delivered
+        out[k] = row
+        times[k] = plant.time_s
+        for key in state:
+            state[key] = row[index[key]]
+    columns = {"time": times, **{name: out[:, i].copy() for i, name in enumerate(names)}}
+    return SimulatedRun(columns, {"time": "s", **SIGNAL_UNITS})
+
+
+def rigid_xml(rig: Rig) -> str:
+    """MJCF of a rigid one-degree-of-freedom joint (slide along x or hinge about z)."""
+    v = rig.rigid
+    h = CONTROL_PERIOD_S / RIGID_SUBSTEPS
+    if v["breakaway"] > v["coulomb"]:
+        raise ValueError("a rigid joint with breakaway > coulomb cannot be simulated here (MuJoCo has no Stribeck "
+                         "curve on a plain joint)")
+    inertial = (f'mass="{v["inertia"]:.9g}" diaginertia="1 1 1"' if rig.joint == "slide" else
+                f'mass="1" diaginertia="{v["inertia"]:.9g} {v["inertia"]:.9g} {v["inertia"]:.9g}"')
+    delay = v.get("delay", 0.0)
+    delay_attr = f'delay="{delay:.9g}" nsample="{int(delay / h) + 2}"' if delay > 0 else ""
+    jtype = "slide" if rig.joint == "slide" else "hinge"
+    axis = "1 0 0" if rig.joint == "slide" else "0 0 1"
+    imp = RIGID_FRICTION_IMPEDANCE
+    return f"""<mujoco model="rigid_joint">
+  <option timestep="{h:.9g}" integrator="Euler"><flag contact="disable" gravity="disable"/></option>
+  <worldbody>
+    <body name="mover">
+      <joint name="joint" type="{jtype}" axis="{axis}" frictionloss="{v['coulomb']:.9g}" damping="{v['viscous']:.9g}"
+             solreffriction="{2 * h:.9g} 1" solimpfriction="{imp} {imp} 0.001 0.5 2"/>
+      <inertial pos="0 0 0" {inertial}/>
+    </body>
+  </worldbody>
+  <actuator>
+    <motor name="drive" joint="joint" gear="{v['effort_gain']:.9g}" {delay_attr}/>
+    <motor name="external" joint="joint" gear="1"/>
+  </actuator>
+</mujoco>"""
+
+
+def run_rigid(rig: Rig, command: CommandFn, n_ticks: int) -> SimulatedRun:
+    """Run a rigid joint rig; columns time, tau_cmd, q, qd (SI: N and m for a slide)."""
+    model = mujoco.MjModel.from_xml_string(rigid_xml(rig))
+    data = mujoco.MjData(model)
+    cmd_map = command_map(rig)
+    grav = _effect(rig, "gravity")
+    cog = _effect(rig, "cogging")
+    base_gravity = rig.rigid.get("gravity_amplitude", 0.0)
+    drive, external = model.actuator("drive").id, model.actuator("external").id
+    out = np.empty((n_ticks, 4))
+    state = {"q": 0.0, "qd": 0.0}
+    for k in range(n_ticks):
+        u = command(k, state)
+        q = state["q"]
+        load = 0.0
+        for amplitude, angle in ((base_gravity, rig.rigid.get("gravity_angle", 0.0)),
+                                 ((grav or {}).get("gravity_amplitude", 0.0), (grav or {}).get("gravity_angle", 0.0))):
+            load += amplitude if rig.joint == "slide" else amplitude * math.sin(q - angle)
+        if cog:
+            load -= cog["cogging_amplitude"] * math.sin(2 * math.pi * q / cog["cogging_period"] + cog["cogging_phase"])
+        data.ctrl[drive] = cmd_map(u)
+        data.ctrl[external] = -load
+        mujoco.mj_step(model, data, RIGID_SUBSTEPS)
+        state["q"], state["qd"] = float(data.qpos[0]), float(data.qvel[0])
+        out[k] = (data.time, u, state["q"], state["qd"])
+    lin = rig.joint == "slide"
+    units = {"time": "s", "tau_cmd": "N" if lin else "N·m", "q": "m" if lin else "rad", "qd": "m/s" if lin else "rad/s"}
+    return SimulatedRun({name: out[:, i].copy() for i, name in enumerate(units)}, units)

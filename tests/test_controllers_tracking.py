@@ -1,0 +1,31 @@
+"""The tracking-error figures: RMS and the paper's peak error, defined once."""
+
+import numpy as np
+import pytest
+
+from controllers.tracking import tracking_error
+
+
+def test_peak_error_compares_peaks_not_pointwise_errors():
+    """A one-sided output (0.035..0.10 N·m against a ±0.05 N·m sine) has RMS error > peak error, as the
+    paper's Table VII lists for current feedback (0.0685 / 0.0505)."""
+    t = np.linspace(0, 10, 10001)
+    r = 0.05 * np.sin(2 * np.pi * 0.2 * t)
+    y = 0.0675 + 0.033 * np.sin(2 * np.pi * 0.2 * t)
+    e = tracking_error(y, r)
+    assert e.rms_nm == pytest.approx(0.0685, abs=0.001)
+    assert e.peak_nm == pytest.approx(0.0505, abs=0.001)
+    assert e.max_abs_nm >= e.rms_nm  # the pointwise maximum cannot be below the RMS
+
+
+def test_reached_fraction_is_the_mean_output_over_the_mean_reference():
+    """A step output at 30 % of its reference has reached fraction 0.3 and RMS error 0.7 r."""
+    e = tracking_error(np.full(100, 0.015), np.full(100, 0.05))
+    assert e.reached_fraction == pytest.approx(0.3)
+    assert e.rms_nm == pytest.approx(0.035)
+
+
+def test_mismatched_arrays_are_refused():
+    """Output and reference must have the same length."""
+    with pytest.raises(ValueError, match="equal-length"):
+        tracking_error(np.zeros(3), np.zeros(4))

@@ -177,7 +177,8 @@ def analyse(log: RunLog, rig: Rig, config: AnalysisConfig | None = None, *, prog
             if not candidates:
                 break
             _progress(f"round {round_index + 1}: fitting {len(candidates)} candidate effects", progress)
-            scores = run_round(surrogate, candidates, current, free + nuisance, scales, current_score, pool)
+            scores = run_round(surrogate, candidates, current, free + nuisance, scales, current_score, before,
+                               pool)
             rounds.append(scores)
             best = scores[0]
             if not best.passes:

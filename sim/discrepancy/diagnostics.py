@@ -25,6 +25,7 @@ MIN_TEMPERATURE_RANGE_K = 1.0  # thermal drift needs the board temperature to ch
 MIN_GRAVITY_RANGE_RAD = 1.0  # gravity on a hinge: the lever must turn through 1 rad
 MIN_PEAK_FRACTION = 0.3  # torque-constant roll-off: commands must reach 30 % of peak effort
 MIN_LOAD_RANGE_NM = 1.0  # load-dependent friction and sensor gain: 1 N·m of transmitted torque
+MIN_STUCK_FRACTION = 0.1  # presliding acts while stuck: the joint must be stuck in >= 10 % of the samples
 MIN_STRIBECK_SAMPLES = 0.02  # Stribeck: >= 2 % of samples between v_s/3 and 3·v_s
 
 
@@ -43,6 +44,8 @@ class Signature:
 def autocorrelation(r: np.ndarray, dt: float) -> dict[str, float]:
     """Normalised autocorrelation of a residual at ``AUTOCORRELATION_LAGS_S`` (white noise: ~0) [1]."""
     r = r[np.isfinite(r)]
+    if len(r) < 2:
+        return {f"{lag_s:g} s": float("nan") for lag_s in AUTOCORRELATION_LAGS_S}
     r = r - r.mean()
     var = float(r @ r)
     out = {}
@@ -106,6 +109,8 @@ def _reversal_indicator(v: np.ndarray, threshold: float) -> np.ndarray:
 
 def _corr(a: np.ndarray, b: np.ndarray) -> float:
     ok = np.isfinite(a) & np.isfinite(b)
+    if ok.sum() < 2:
+        return 0.0
     a, b = a[ok] - a[ok].mean(), b[ok] - b[ok].mean()
     den = math.sqrt(float(a @ a) * float(b @ b))
     return float(a @ b) / den if den > 0 else 0.0
@@ -164,6 +169,9 @@ def identifiability(name: str, surrogate: Surrogate, theta: dict[str, float]) ->
             return f"only {100 * frac:.1f} % of samples between v_s/3 and 3·v_s (v_s = {vs:g})"
     n_rev = reversals(v, surrogate.stick_velocity)
     if name == "presliding_friction":
+        if surrogate.stuck.mean() < MIN_STUCK_FRACTION:
+            return (f"the joint is stuck in only {100 * surrogate.stuck.mean():.1f} % of the samples (needs "
+                    f"{100 * MIN_STUCK_FRACTION:g} %): presliding acts while stuck")
         if n_rev < MIN_REVERSALS:
             return f"{n_rev} motion reversal(s) in the log (needs {MIN_REVERSALS})"
         displacement = theta["breakaway"] / theta["presliding_stiffness"]

@@ -150,3 +150,13 @@ def effect_of_key(key: str) -> EffectSpec:
         if key in effect.keys:
             return effect
     raise KeyError(f"no effect owns parameter {key!r}")
+
+
+def canonical(theta: dict[str, float], joint: str) -> dict[str, float]:
+    """One representative of parameter sets that describe the same physics: a hinge's gravity load
+    ``A·sin(q - q0)`` equals ``-A·sin(q - q0 - π)``, kept with ``A >= 0`` and ``q0`` in [-π, π)."""
+    if joint == "hinge" and theta.get("gravity_amplitude", 0.0) < 0.0:
+        theta = dict(theta)
+        theta["gravity_amplitude"] = -theta["gravity_amplitude"]
+        theta["gravity_angle"] = (theta["gravity_angle"] + 2.0 * math.pi) % (2.0 * math.pi) - math.pi
+    return theta

@@ -19,7 +19,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.optimize import least_squares
 
-from sim.discrepancy.effects import EFFECTS, MAX_DELAY_S, effect_of_key
+from sim.discrepancy.effects import EFFECTS, MAX_DELAY_S, canonical, effect_of_key
 from sim.discrepancy.model import Surrogate
 
 INERTIA_RANGE = (0.1, 10.0)  # re-fitted inertia within this factor of the baseline [1]
@@ -67,8 +67,9 @@ def residual_vector(surrogate: Surrogate, theta: dict[str, float], mask: np.ndar
     parts = []
     for channel, r in surrogate.residuals(theta).items():
         sel = r[mask][::decimation]
-        sel = sel[np.isfinite(sel)]
-        parts.append(sel / scales[channel])
+        # samples that do not count are zeros, not dropped: the vector keeps its length while the parameters
+        # move the kinematic channel's contact set
+        parts.append(np.where(np.isfinite(sel), sel, 0.0) / scales[channel])
     return np.concatenate(parts)
 
 
@@ -114,7 +115,7 @@ def fit_keys(surrogate: Surrogate, theta0: dict[str, float], keys: tuple[str, ..
                              diff_step=1e-4)
     theta = dict(best)
     theta.update(zip(keys, solution.x.tolist(), strict=True))
-    return FitOutcome(theta, keys, float(2.0 * solution.cost), evaluations)
+    return FitOutcome(canonical(theta, surrogate.rig.joint), keys, float(2.0 * solution.cost), evaluations)
 
 
 def effect_starts(name: str, theta: dict[str, float], surrogate: Surrogate) -> tuple[list[dict[str, float]], tuple[str, ...]]:

@@ -8,7 +8,9 @@ accepted only if **both** hold:
    ``RSS_c`` the held-out residual sum of squares of channel ``c``, ``n_c`` its number of *independent*
    samples (held-out samples x 2·f_c/f_s: the residuals are low-passed at f_c), ``n = Σ n_c`` and ``k`` the
    number of the effect's fitted parameters;
-2. minimum relative gain: some channel's held-out RMSE falls by at least ``min_relative_gain``.
+2. minimum relative gain: in some channel, the held-out RMSE falls by at least ``min_relative_gain`` of the
+   *baseline's* held-out RMSE (before any finding), so that a later effect cannot pass by polishing a
+   residual the earlier findings already brought down to the surrogate's own mismatch.
 
 Rounds repeat with the extended model until no candidate passes; none passing at all is the verdict
 "no significant discrepancy". Candidate fits of a round run in parallel processes (``config.workers``).
@@ -98,7 +100,8 @@ def _init_worker(surrogate: Surrogate) -> None:
 
 
 def fit_candidate(surrogate: Surrogate, effect: str, theta: dict[str, float], free: tuple[str, ...],
-                  scales: dict[str, float], before: ChannelScore, config_gain: float, config_ic: float) -> CandidateScore:
+                  scales: dict[str, float], before: ChannelScore, config_gain: float, config_ic: float,
+                  baseline: ChannelScore) -> CandidateScore:
     """Fit one effect (with the free baseline parameters) and score it against ``before``."""
     import time
 
@@ -109,7 +112,8 @@ def fit_candidate(surrogate: Surrogate, effect: str, theta: dict[str, float], fr
     after = held_out_score(surrogate, outcome.theta)
     n_params = len(EFFECTS[effect].keys)
     delta, gains = compare(before, after, n_params)
-    passes = delta < -config_ic and bool(gains) and max(gains.values()) >= config_gain
+    gains_of_baseline = {c: (before.rmse[c] - after.rmse[c]) / baseline.rmse[c] for c in gains}
+    passes = delta < -config_ic and bool(gains) and max(gains_of_baseline.values()) >= config_gain
     return CandidateScore(effect, outcome, after, delta, gains, passes, time.perf_counter() - start)
 
 
@@ -118,10 +122,12 @@ def _fit_in_worker(args: tuple) -> CandidateScore:
 
 
 def run_round(surrogate: Surrogate, candidates: list[str], theta: dict[str, float], free: tuple[str, ...],
-              scales: dict[str, float], before: ChannelScore, pool: ProcessPoolExecutor | None) -> list[CandidateScore]:
+              scales: dict[str, float], before: ChannelScore, baseline: ChannelScore,
+              pool: ProcessPoolExecutor | None) -> list[CandidateScore]:
     """Fit and score every candidate (in ``pool`` if given), best ΔBIC first."""
     cfg = surrogate.config
-    args = [(effect, theta, free, scales, before, cfg.min_relative_gain, cfg.min_ic_drop) for effect in candidates]
+    args = [(effect, theta, free, scales, before, cfg.min_relative_gain, cfg.min_ic_drop, baseline)
+            for effect in candidates]
     if pool is None:
         scores = [fit_candidate(surrogate, *a) for a in args]
     else:

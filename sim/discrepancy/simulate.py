@@ -91,19 +91,31 @@ def testbed_plant(rig: Rig) -> Plant:
     return plant
 
 
-def run_testbed(rig: Rig, command: CommandFn, n_ticks: int, *, backlash_side: int = 0) -> SimulatedRun:
-    """Run the testbed of ``rig`` for ``n_ticks`` with a command function; true signals of every tick."""
-    plant = testbed_plant(rig)
+InitialState = Callable[[mujoco.MjModel, mujoco.MjData], None]  # sets qpos/qvel/act after a reset
+
+
+def run_testbed(rig: Rig, command: CommandFn, n_ticks: int, *, backlash_side: int = 0,
+                initial: InitialState | None = None, plant: Plant | None = None) -> SimulatedRun:
+    """Run the testbed of ``rig`` for ``n_ticks`` with a command function; true signals of every tick.
+
+    ``initial`` sets the state after the reset (a replay window starting from a measured state); ``plant``
+    reuses a plant built by :func:`testbed_plant` for this rig (windows of one replay).
+    """
+    plant = plant or testbed_plant(rig)
     plant.reset(backlash_side=backlash_side)
+    if initial is not None:
+        initial(plant.model, plant.data)
+        mujoco.mj_forward(plant.model, plant.data)
     cmd_map = command_map(rig)
     grav = _effect(rig, "gravity")
     names = list(SIGNAL_UNITS)
     out = np.empty((n_ticks, len(names)))
     times = np.empty(n_ticks)
-    state = {"q": 0.0, "qd": 0.0, "q_motor": 0.0, "tau_flexure": 0.0, "tau_current_estimate": 0.0,
-             "force_loadcell": 0.0}
     row = np.empty(len(names))
     index = {name: i for i, name in enumerate(names)}
+    plant.read_signals(row)
+    state = {key: float(row[index[key]]) for key in ("q", "qd", "q_motor", "tau_flexure", "tau_current_estimate",
+                                                     "force_loadcell")}
     for k in range(n_ticks):
         u = command(k, state)
         tau_ext = 0.0
@@ -150,17 +162,20 @@ def rigid_xml(rig: Rig) -> str:
 </mujoco>"""
 
 
-def run_rigid(rig: Rig, command: CommandFn, n_ticks: int) -> SimulatedRun:
+def run_rigid(rig: Rig, command: CommandFn, n_ticks: int, *, initial: InitialState | None = None) -> SimulatedRun:
     """Run a rigid joint rig; columns time, tau_cmd, q, qd (SI: N and m for a slide)."""
     model = mujoco.MjModel.from_xml_string(rigid_xml(rig))
     data = mujoco.MjData(model)
+    if initial is not None:
+        initial(model, data)
+        mujoco.mj_forward(model, data)
     cmd_map = command_map(rig)
     grav = _effect(rig, "gravity")
     cog = _effect(rig, "cogging")
     base_gravity = rig.rigid.get("gravity_amplitude", 0.0)
     drive, external = model.actuator("drive").id, model.actuator("external").id
     out = np.empty((n_ticks, 4))
-    state = {"q": 0.0, "qd": 0.0}
+    state = {"q": float(data.qpos[0]), "qd": float(data.qvel[0])}
     for k in range(n_ticks):
         u = command(k, state)
         q = state["q"]

@@ -1,8 +1,10 @@
 """Where a torque loop gets its measured torque: the motor driver's current-based estimate or the calibrated
 optical joint torque sensor.
 
-* ``current``: :attr:`sim.plant.Plant.current_torque_estimate_nm`, N·K_t·i, what a GIM8108 driver reports.
-  It is blind to the gear's friction, backlash and load-dependent losses (it sits before them).
+* ``current``: the driver's N·K_t·i, what a GIM8108 reports: :attr:`sim.plant.Plant.current_torque_estimate_nm`
+  through the inverse of :class:`controllers.motor_driver.CurrentToTorqueMap` (the driver assumes the nominal
+  K_t). It is blind to the gear's friction, backlash, load-dependent losses and the current-to-torque
+  nonlinearity.
 * ``sensor``: :class:`sensor.readout.TorqueSensorReadout`, the photo-reflector array read once per tick from
   the flexure's twist and the TMP117 temperature through the factory calibration (QP), with its channel
   noise, ADC quantisation, hysteresis and thermal drift.
@@ -12,6 +14,7 @@ from __future__ import annotations
 
 from typing import Protocol
 
+from controllers.motor_driver import CurrentToTorqueMap
 from sim.params import TestbedParams
 
 FEEDBACK_KINDS = ("current", "sensor")
@@ -32,8 +35,11 @@ class CurrentFeedback:
 
     kind = "current"
 
+    def __init__(self, torque_map: CurrentToTorqueMap | None = None) -> None:
+        self.torque_map = torque_map or CurrentToTorqueMap(0.0)
+
     def read(self, plant) -> float:
-        return plant.current_torque_estimate_nm
+        return self.torque_map.command_nm(plant.current_torque_estimate_nm)
 
     def reset(self) -> None:
         """Stateless."""
@@ -59,7 +65,7 @@ class SensorFeedback:
 def make_feedback(kind: str, params: TestbedParams | None = None, seed: int = 0) -> TorqueFeedback:
     """The feedback source named ``kind`` ('current' or 'sensor'); ``seed`` drives the sensor's noise."""
     if kind == "current":
-        return CurrentFeedback()
+        return CurrentFeedback(CurrentToTorqueMap.from_params(params or TestbedParams()))
     if kind == "sensor":
         return SensorFeedback(params, seed)
     raise ValueError(f"feedback = {kind!r}: valid values are {', '.join(FEEDBACK_KINDS)}")

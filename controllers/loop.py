@@ -1,7 +1,9 @@
 """Closed control loops on the simulated testbed, tick by tick, recorded as a :class:`~sim.runlog.RunLog`.
 
 Order within control tick k: read the measured torque (and angles) from the plant's state at the end of tick
-k-1, compute the command, step the plant one tick with it, record the signals at the end of tick k.
+k-1, compute the command, step the plant one tick with the torque the motor delivers for it
+(:class:`controllers.motor_driver.CurrentToTorqueMap`, physics the plant does not apply yet), record the
+signals at the end of tick k. The ``tau_cmd`` column is the plant's input, i.e. the delivered torque.
 """
 
 from __future__ import annotations
@@ -10,6 +12,7 @@ import numpy as np
 
 from controllers.admittance import AdmittanceController
 from controllers.feedback import TorqueFeedback
+from controllers.motor_driver import CurrentToTorqueMap
 from controllers.pi import PITorqueController
 from sim.plant import SIGNAL_UNITS, Plant
 from sim.run import Progress
@@ -78,12 +81,13 @@ def run_torque_loop(plant: Plant, controller: PITorqueController, feedback: Torq
     out, times, measured = np.empty((n, len(names))), np.empty(n), np.empty(n)
     bar = Progress(progress_label, n, plant.params.simulation.control_period_s) if progress_label else None
     use_hub = bool(np.any(tau_hub))
+    delivered = CurrentToTorqueMap.from_params(plant.params).delivered_nm
     for k in range(n):
         measured[k] = feedback.read(plant)
         command = controller.step(tau_ref[k], measured[k])
         if use_hub:
             apply_hub_torque(plant, tau_hub[k])
-        plant.step(command, tau_ext[k])
+        plant.step(delivered(command), tau_ext[k])
         times[k] = plant.time_s
         plant.read_signals(out[k])
         if bar is not None and (k % PROGRESS_EVERY_TICKS == PROGRESS_EVERY_TICKS - 1 or k == n - 1):
@@ -96,7 +100,8 @@ def run_torque_loop(plant: Plant, controller: PITorqueController, feedback: Torq
         units["tau_sensor"] = "N·m"
     return RunLog(_columns(names, out, extra, times), units,
                   {"fixture": plant.fixture, "feedback": feedback.kind, "physics_timestep_s": plant.timestep_s,
-                   "lever_length_m": plant.params.lever.length_m, **(meta or {})})
+                   "lever_length_m": plant.params.lever.length_m,
+                   "torque_saturation_per_nm": plant.params.motor.torque_saturation_per_nm, **(meta or {})})
 
 
 def run_admittance_loop(plant: Plant, controller: AdmittanceController, feedback: TorqueFeedback,
@@ -125,12 +130,13 @@ def run_admittance_loop(plant: Plant, controller: AdmittanceController, feedback
     out, times = np.empty((n, len(names))), np.empty(n)
     measured, hand_torque, theta_ref, omega_ref = (np.empty(n) for _ in range(4))
     bar = Progress(progress_label, n, plant.params.simulation.control_period_s) if progress_label else None
+    delivered = CurrentToTorqueMap.from_params(plant.params).delivered_nm
     for k in range(n):
         measured[k] = feedback.read(plant)
         theta_ref[k], omega_ref[k] = controller.reference_angle_rad, controller.reference_velocity_rad_s
         command = controller.step(-measured[k], plant.motor_angle_rad, plant.motor_velocity_rad_s)
         hand_torque[k] = hand.torque_nm(k, plant.output_angle_rad, plant.output_velocity_rad_s)
-        plant.step(command, hand_torque[k])
+        plant.step(delivered(command), hand_torque[k])
         times[k] = plant.time_s
         plant.read_signals(out[k])
         if bar is not None and (k % PROGRESS_EVERY_TICKS == PROGRESS_EVERY_TICKS - 1 or k == n - 1):

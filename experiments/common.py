@@ -59,7 +59,8 @@ def add_experiment_args(parser: argparse.ArgumentParser, *, feedback: bool = Tru
                         help="shorten every test to S seconds (a quick check; the paper's figures need the "
                              "full length)")
     parser.add_argument("--json", type=Path, metavar="PATH", help="write the results as JSON")
-    parser.add_argument("--plot", type=Path, metavar="DIR", help="save PNG figures in DIR")
+    parser.add_argument("--plot", type=Path, metavar="DIR", default=Path("out"),
+                        help="save PNG figures in DIR (default out/)")
     add_params_arg(parser)
 
 

@@ -12,8 +12,9 @@ in the flexure and the load cell (``PRECONDITION_HOLD_S`` pushing, ``PRECONDITIO
 0.2 Hz, each starting at zero phase. RMS and peak errors of the load-cell reading against the reference
 over the whole run, with the peak error defined in :mod:`controllers.tracking` (|max y - max r|: the
 definition under which the paper's Table VII is consistent). The one-sided actuation of the paper's
-low-torque current-feedback tests is measured as the fraction of the load-cell torque's excursion above
-its midpoint: ``positive_share`` = |max y| / (|max y| + |min y|) (0.5 for a symmetric output).
+low-torque current-feedback tests is measured as the share of the load-cell torque's impulse that is
+positive: ``positive_share`` = sum(max(y, 0)) / sum(|y|) (0.5 for a symmetric output, 1 for an output that
+never goes negative).
 """
 
 from __future__ import annotations
@@ -128,9 +129,9 @@ def run_sinusoid_case(params: TestbedParams, feedback: str, waveform: Waveform, 
                           progress_label=f"{waveform.name}, {feedback}" if progress else None,
                           meta={"waveform": waveform.name, "seed": seed})
     output = loadcell_torque_nm(log, seed)
-    top, bottom = abs(output.max()), abs(output.min())
+    positive_share = float(np.clip(output, 0.0, None).sum() / max(np.abs(output).sum(), 1e-300))
     paper_rms, paper_peak = PAPER_ERRORS_NM[(feedback, waveform.name)]
-    return SinusoidCase(waveform, feedback, tracking_error(output, reference), top / (top + bottom),
+    return SinusoidCase(waveform, feedback, tracking_error(output, reference), positive_share,
                         paper_rms, paper_peak, log=log)
 
 
@@ -185,7 +186,7 @@ def main(argv: list[str] | None = None) -> None:
     print(format_rows("Sine and square tracking, locked lever: load-cell torque vs reference (Table VII)",
                       result.rows()))
     for c in result.cases:
-        print(f"  {c.waveform.name}, {c.feedback}: positive share of the output excursion "
+        print(f"  {c.waveform.name}, {c.feedback}: positive share of the output's impulse "
               f"{c.positive_share:.2f} (0.5 = symmetric; the paper reports one-sided actuation at low torque "
               f"under current feedback)")
     if args.json:

@@ -34,7 +34,8 @@ def test_torque_experiment_short_mode_prints_paper_beside_sim_and_writes_json_an
 def test_step_single_feedback_runs_only_that_feedback(tmp_path):
     """--feedback current runs no sensor-feedback case."""
     out = tmp_path / "r.json"
-    result = run("experiments.step", "--feedback", "current", "--duration", "0.2", "--json", str(out))
+    result = run("experiments.step", "--feedback", "current", "--duration", "0.2", "--json", str(out),
+                 "--plot", str(tmp_path))
     assert result.returncode == 0, result.stderr
     assert {c["feedback"] for c in json.loads(out.read_text())["cases"]} == {"current"}
 

@@ -1,0 +1,46 @@
+"""The motor driver's current-to-torque map: what the GIM8108 delivers for a torque command, and what its
+current-based estimate reports.
+
+The driver turns a torque command τ_cmd into a current i = τ_cmd / (N·K_t) with its current loop and reports
+N·K_t·i as its torque estimate. The torque the magnets actually produce per ampere falls at high current
+(magnetic saturation), modelled as::
+
+    τ_delivered = τ_cmd · (1 - β |τ_cmd|)          β = motor.torque_saturation_per_nm [1/(N·m)]
+
+so the estimate (linear in the current) over-reports by τ_cmd - τ_delivered. This is physics the plant does
+not model yet (``sim.plant`` feeds the command to MuJoCo's ``dcmotor`` as is); until it does, the closed-loop
+runners of :mod:`controllers.loop` apply the map on the command path and invert it on the estimate, and say
+so in the run's metadata. Remove this module once ``Plant`` applies ``motor.torque_saturation_per_nm``.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+from sim.params import TestbedParams
+
+
+@dataclass(frozen=True)
+class CurrentToTorqueMap:
+    """τ_delivered = τ_cmd (1 - β|τ_cmd|) and its inverse (β in 1/(N·m), 0: linear)."""
+
+    saturation_per_nm: float
+
+    @classmethod
+    def from_params(cls, params: TestbedParams) -> "CurrentToTorqueMap":
+        return cls(params.motor.torque_saturation_per_nm)
+
+    def delivered_nm(self, command_nm: float) -> float:
+        """Torque the motor produces for a command [N·m]."""
+        return command_nm * (1.0 - self.saturation_per_nm * abs(command_nm))
+
+    def command_nm(self, delivered_nm: float) -> float:
+        """The command that delivers ``delivered_nm`` [N·m] (the inverse map, on its monotonic branch)."""
+        beta = self.saturation_per_nm
+        if beta == 0.0:
+            return delivered_nm
+        root = 1.0 - 4.0 * beta * abs(delivered_nm)
+        if root < 0.0:  # beyond the map's maximum 1/(4β): the largest command that maps there
+            return math.copysign(1.0 / (2.0 * beta), delivered_nm)
+        return math.copysign((1.0 - math.sqrt(root)) / (2.0 * beta), delivered_nm)

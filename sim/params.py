@@ -60,8 +60,8 @@ class MotorParams:
         5.0e-4, "s", "assumed: CAN-FD transfer and driver processing of one torque command; the paper "
         "gives none", 0.0, 0.05)
     torque_saturation_per_nm: float = quantity(
-        0.01, "1/(N·m)", "identified (experiments/identify_defaults.py, Table VII 10 N·m sine): torque per "
-        "ampere falls as β·|τ| by magnetic saturation, τ = τ_cmd·(1 - β·|τ_cmd|), while the driver's estimate "
+        0.01, "1/(N·m)", "tuned: identified against the paper's Tables VI-VII by experiments/identify_defaults.py "
+        "(the 10 N·m sine sets it). Torque per ampere falls as β·|τ| by magnetic saturation, τ = τ_cmd·(1 - β·|τ_cmd|), while the driver's estimate "
         "assumes the nominal K_t (paper Sec. V-A: the current-based estimate 'exhibits nonlinearity'); 0.01 "
         "is 10 % at 10 N·m, 18 % at the 18 N·m peak. Applied by controllers.motor_driver in the closed-loop "
         "runs (not yet by sim.plant)", 0.0, 0.025)

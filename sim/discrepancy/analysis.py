@@ -260,7 +260,8 @@ def _extended_rig(rig: Rig, theta0: dict[str, float], theta: dict[str, float], f
         native = {k: v for k, v in native.items() if k not in ("load_coefficient", "presliding_stiffness",
                                                                 "backlash_width")}
         coulomb = native.get("coulomb", rig.rigid["coulomb"])
-        if coulomb > native.get("breakaway", rig.rigid["breakaway"]):  # no Stribeck drop: static = sliding level
+        tied = rig.rigid["breakaway"] == rig.rigid["coulomb"] and "breakaway" not in native
+        if tied or coulomb > native.get("breakaway", rig.rigid["breakaway"]):  # one level: static = sliding
             native["breakaway"] = coulomb
     added = []
     for f in findings:

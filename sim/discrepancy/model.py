@@ -143,6 +143,10 @@ class Surrogate:
         else:
             self.stick_velocity = RIGID_STICK_FRACTION * float(np.sqrt(np.mean(d.velocity**2)))
         self.stuck = np.abs(d.velocity) < self.stick_velocity
+        # a rigid joint without a Stribeck drop (breakaway == coulomb) has one dry-friction level: while its
+        # breakaway is not fitted, the static level follows the Coulomb level
+        self._base_breakaway = self.rig.rigid.get("breakaway") if not self.testbed else None
+        self._tied_static = (not self.testbed) and self.rig.rigid["breakaway"] == self.rig.rigid["coulomb"]
         self.slide_sign = np.sign(d.velocity)
         self._cache: dict[str, OrderedDict] = {"delivered": OrderedDict(), "friction": OrderedDict(),
                                                 "play": OrderedDict()}
@@ -180,10 +184,16 @@ class Surrogate:
 
         return self._cached("delivered", key, compute)
 
+    def static_level(self, theta: dict[str, float]) -> float:
+        """Static (breakaway) friction level [N·m | N]."""
+        if self._tied_static and theta["breakaway"] == self._base_breakaway:
+            return theta["coulomb"]
+        return max(theta["breakaway"], theta["coulomb"])
+
     def friction(self, theta: dict[str, float]) -> np.ndarray:
         """Velocity-dependent gear friction (LuGre for the testbed, static for a rigid joint), filtered."""
         d = self.data
-        fc, fs, vs = theta["coulomb"], max(theta["breakaway"], theta["coulomb"]), theta["stribeck_velocity"]
+        fc, fs, vs = theta["coulomb"], self.static_level(theta), theta["stribeck_velocity"]
         if self.testbed:
             key = (fc, fs, vs, theta["presliding_stiffness"])
 
@@ -265,6 +275,6 @@ class Surrogate:
                 out["kinematic"] = np.where(np.abs(tau) > self.config.contact_torque, twist - expected, np.nan)
         else:
             rest = rest - self.gravity(theta)
-            static = max(theta["breakaway"], theta["coulomb"])
+            static = self.static_level(theta)
             out["effort"] = np.where(self.stuck, rest - np.clip(rest, -static, static), rest - self.friction(theta))
         return out

@@ -74,8 +74,9 @@ def draw_effect(name: str, rig: Rig, rng: np.random.Generator) -> tuple[dict[str
     up = rng.random() < 0.5
     slide = rig.joint == "slide"
     if name == "coulomb_friction":
-        if slide:
-            return {"coulomb": rig.rigid["coulomb"] * (u(1.3, 1.6) if up else u(0.5, 0.7))}, {}
+        if slide:  # MuJoCo's frictionloss is one level: static and sliding move together
+            level = rig.rigid["coulomb"] * (u(1.3, 1.6) if up else u(0.5, 0.7))
+            return {"coulomb": level, "breakaway": level}, {}
         return {"coulomb": u(0.112, 0.125) if up else u(0.045, 0.07)}, {}  # baseline 0.09, below breakaway 0.13
     if name == "viscous_friction":
         base = rig.rigid["viscous"] if slide else rig.params.friction.viscous_nms_per_rad

@@ -1,0 +1,112 @@
+"""Hidden-effect sweep (slow): every effect of the library across seeds, false positives, pairs of effects.
+
+Each effect is hidden in the experiment that makes it identifiable (docs/discrepancy.md), at a value drawn
+from its realistic range (sim.discrepancy.synth.draw_effect) with the seed; the analysis gets only the log
+and the baseline rig. Tolerances are stated per effect; the looser ones say why.
+"""
+
+import math
+
+import pytest
+
+from sim.discrepancy.analysis import analyse
+from sim.discrepancy.synth import EXPERIMENTS, hidden_effect_log
+
+SEEDS = (21, 22, 23)
+DURATION_S = 10.0
+TIGHT = 0.05  # relative error of parameters the experiment excites well
+
+# effect -> (experiment, {parameter: (tolerance, 'relative' | 'absolute')})
+CASES = {
+    "coulomb_friction": ("free", {"coulomb": (TIGHT, "relative")}),
+    "viscous_friction": ("free", {"viscous": (TIGHT, "relative")}),
+    # F_s and v_s trade off along the low-speed curve (measured errors 35 % on F_s at 8 s): a 50 % tolerance
+    "stribeck_friction": ("free", {"breakaway": (0.5, "relative"), "stribeck_velocity": (0.5, "relative")}),
+    "asymmetric_friction": ("free", {"asymmetry": (TIGHT, "relative")}),
+    "load_dependent_friction": ("locked", {"load_coefficient": (TIGHT, "relative")}),
+    "backlash": ("locked", {"backlash_width": (TIGHT, "relative")}),
+    "cogging": ("free", {"cogging_amplitude": (TIGHT, "relative"), "cogging_period": (1e-9, "relative")}),
+    "torque_constant_nonlinearity": ("locked", {"torque_rolloff": (0.1, "relative")}),  # 10 %: one swing of ±8 N·m
+    "transport_delay": ("free", {"delay": (3e-4, "absolute")}),  # [s], a third of a sample
+    "gravity": ("free", {"gravity_amplitude": (TIGHT, "relative"), "gravity_angle": (0.1, "absolute")}),
+    "sensor_offset": ("locked", {"sensor_offset": (TIGHT, "relative")}),
+    "sensor_gain": ("locked", {"sensor_gain": (0.005, "absolute")}),  # [1]: the drawn errors are 2-5 %
+    "sensor_thermal_drift": ("locked", {"sensor_tempco": (TIGHT, "relative")}),
+    "sensor_hysteresis": ("locked", {"sensor_hysteresis": (0.1, "relative"),
+                                     "sensor_hysteresis_span": (0.1, "relative")}),
+}
+SLIDE_CASES = {
+    "coulomb_friction": {"coulomb": (TIGHT, "relative")},
+    "gravity": {"gravity_amplitude": (TIGHT, "relative")},
+}
+
+
+def _check(result, truth, effect, tolerances):
+    assert result.found, f"{effect}: nothing found"
+    assert result.found[0] == effect, f"{effect} hidden, found {result.found}"
+    first = result.findings[0]
+    for key, (tol, kind) in tolerances.items():
+        found, true = first.parameters[key]["value"], truth.effects[effect][key]
+        error = abs(found - true) / abs(true) if kind == "relative" else abs(found - true)
+        assert error < tol, f"{effect}.{key}: found {found:.6g}, truth {true:.6g}"
+    assert first.gain > 0 and first.rmse_heldout_after < first.rmse_heldout_before
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("seed", SEEDS)
+@pytest.mark.parametrize("effect", list(CASES))
+def test_every_effect_is_named_first_and_recovered(effect, seed):
+    """Each library effect hidden alone is the first finding, with its parameters within tolerance."""
+    experiment, tolerances = CASES[effect]
+    log, rig, truth = hidden_effect_log(experiment, [effect], seed, DURATION_S)
+    _check(analyse(log, rig), truth, effect, tolerances)
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("seed", SEEDS)
+@pytest.mark.parametrize("effect", list(SLIDE_CASES))
+def test_slide_rig_effects_are_found(effect, seed):
+    """On a rigid slide joint, hidden Coulomb friction, gravity and dead time are found and recovered."""
+    log, rig, truth = hidden_effect_log("slide", [effect], seed, DURATION_S)
+    _check(analyse(log, rig), truth, effect, SLIDE_CASES[effect])
+
+
+@pytest.mark.slow
+@pytest.mark.xfail(reason="measured: the slide's dead time comes out 0.6-0.8 ms long (MuJoCo actuator delay on "
+                          "the rigid joint against the surrogate's hold-centred delay; not resolved)", strict=True)
+@pytest.mark.parametrize("seed", SEEDS)
+def test_slide_dead_time_is_recovered(seed):
+    """A dead time hidden in the slide's drive is found and recovered within a third of a sample."""
+    log, rig, truth = hidden_effect_log("slide", ["transport_delay"], seed, DURATION_S)
+    _check(analyse(log, rig), truth, "transport_delay", {"delay": (3e-4, "absolute")})
+
+
+@pytest.mark.slow
+def test_presliding_is_declared_unrevealable_at_the_encoder_resolution():
+    """With the 16-bit motor encoder, the analysis says presliding cannot be revealed instead of guessing."""
+    log, rig, _ = hidden_effect_log("locked", ["presliding_friction"], 21, DURATION_S)
+    result = analyse(log, rig)
+    assert "resolution" in result.baseline["not_identifiable"]["presliding_friction"]
+    assert "presliding_friction" not in result.found
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("seed", (31, 32, 33, 34, 35))
+@pytest.mark.parametrize("experiment", EXPERIMENTS)
+def test_no_false_positives(experiment, seed):
+    """Logs of the baseline itself, in every experiment, give no finding."""
+    log, rig, _ = hidden_effect_log(experiment, [], seed, DURATION_S)
+    assert analyse(log, rig).found == []
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("seed", SEEDS)
+@pytest.mark.parametrize("experiment, effects", [
+    ("free", ["coulomb_friction", "cogging"]),
+    ("locked", ["backlash", "sensor_gain"]),
+    ("locked", ["torque_constant_nonlinearity", "sensor_thermal_drift"]),
+])
+def test_two_hidden_effects_are_both_found(experiment, effects, seed):
+    """Two effects hidden at once are both found."""
+    log, rig, truth = hidden_effect_log(experiment, effects, seed, DURATION_S)
+    assert set(effects) <= set(analyse(log, rig).found)

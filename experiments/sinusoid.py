@@ -8,9 +8,11 @@ Protocol: the tests follow the disturbance test in the paper's order, so each st
 test leaves: the motor had pushed the lever against the load cell at ``PRECONDITION_NM`` (0.5 N·m), the
 command is ramped back to zero, and the gear stops where its friction holds it, with some torque still locked
 in the flexure and the load cell (``PRECONDITION_HOLD_S`` pushing, ``PRECONDITION_RAMP_S`` ramping down,
-``PRECONDITION_RELEASE_S`` released; open loop, not evaluated). Then ``TEST_DURATION_S`` of reference: 0.05 N·m sine at 0.2 Hz, 0.1 N·m square wave at 1 Hz, 10 N·m sine at
-0.2 Hz, each starting at zero phase. RMS and peak errors of the load-cell reading against the reference
-over the whole run, with the peak error defined in :mod:`controllers.tracking` (|max y - max r|: the
+``PRECONDITION_RELEASE_S`` released; open loop, not evaluated). Then the reference under closed-loop
+control: 0.05 N·m sine at 0.2 Hz, 0.1 N·m square wave at 1 Hz, 10 N·m sine at 0.2 Hz, each starting at zero
+phase, for ``WARMUP_PERIODS`` period (not evaluated: the figures describe the periodic test, not its start
+from that preload) and then ``TEST_DURATION_S``, evaluated. RMS and peak errors of the load-cell reading
+against the reference over the evaluated window, with the peak error defined in :mod:`controllers.tracking` (|max y - max r|: the
 definition under which the paper's Table VII is consistent). The one-sided actuation of the paper's
 low-torque current-feedback tests is measured as the share of the load-cell torque's impulse that is
 positive: ``positive_share`` = sum(max(y, 0)) / sum(|y|) (0.5 for a symmetric output, 1 for an output that
@@ -38,6 +40,7 @@ from sim.run import run_open_loop
 from sim.runlog import RunLog
 
 TEST_DURATION_S = 10.0  # [s] two periods of the 0.2 Hz sines, ten of the square wave (assumed)
+WARMUP_PERIODS = 1  # [-] reference periods run before the evaluated window
 PRECONDITION_NM = 0.5  # [N·m] the torque of the preceding test (the 0.5 N·m regulation of Sec. V-A)
 PRECONDITION_HOLD_S = 0.5  # [s]
 PRECONDITION_RAMP_S = 0.5  # [s] the command ramped back to zero (an operator ending the test, assumed)
@@ -122,13 +125,15 @@ def run_sinusoid_case(params: TestbedParams, feedback: str, waveform: Waveform, 
     """One waveform under ``feedback`` from the preconditioned rig (see the module docstring)."""
     plant = precondition(params)
     dt = params.simulation.control_period_s
-    t = np.arange(1, round(duration_s / dt) + 1) * dt
+    n_warmup = round(min(WARMUP_PERIODS / waveform.frequency_hz, duration_s) / dt)  # short mode: short warm-up
+    t = np.arange(1, n_warmup + round(duration_s / dt) + 1) * dt
     reference = waveform.reference(t - dt)  # the reference of tick k is applied from the start of tick k
     controller = PITorqueController(output_limit_nm=params.motor.peak_torque_nm, period_s=dt)
     log = run_torque_loop(plant, controller, make_feedback(feedback, params, seed), reference,
                           progress_label=f"{waveform.name}, {feedback}" if progress else None,
-                          meta={"waveform": waveform.name, "seed": seed})
-    output = loadcell_torque_nm(log, seed)
+                          meta={"waveform": waveform.name, "seed": seed, "warmup_ticks": n_warmup})
+    output = loadcell_torque_nm(log, seed)[n_warmup:]
+    reference = reference[n_warmup:]
     positive_share = float(np.clip(output, 0.0, None).sum() / max(np.abs(output).sum(), 1e-300))
     paper_rms, paper_peak = PAPER_ERRORS_NM[(feedback, waveform.name)]
     return SinusoidCase(waveform, feedback, tracking_error(output, reference), positive_share,
@@ -159,6 +164,9 @@ def plot_sinusoid(result: SinusoidResult, directory: Path) -> Path:
     for c in result.cases:
         ax = axes[kinds.index(c.feedback)][[w.name for w in WAVEFORMS].index(c.waveform.name)]
         log = c.log
+        warmup = log.meta["warmup_ticks"]
+        if warmup:
+            ax.axvspan(log["time"][0], log["time"][warmup - 1], color="0.92", label="warm-up, not evaluated")
         ax.plot(log["time"], loadcell_torque_nm(log, result.seed), lw=0.8,
                 color="tab:green" if c.feedback == "current" else "tab:gray", label="load cell")
         ax.plot(log["time"], log["tau_ref"], "k--", lw=0.8, label="reference")

@@ -10,7 +10,7 @@ import math
 import pytest
 
 from sim.discrepancy.analysis import analyse
-from sim.discrepancy.synth import EXPERIMENTS, hidden_effect_log
+from sim.discrepancy.synth import EXPERIMENTS, FINE_MOTOR_ENCODER_COUNTS, hidden_effect_log
 
 SEEDS = (21, 22, 23)
 DURATION_S = 10.0
@@ -88,6 +88,40 @@ def test_presliding_is_declared_unrevealable_at_the_encoder_resolution():
     result = analyse(log, rig)
     assert "resolution" in result.baseline["not_identifiable"]["presliding_friction"]
     assert "presliding_friction" not in result.found
+
+
+# Presliding with a fine motor encoder (22 bits per motor turn), hidden in the closed-loop current-feedback log:
+# the torque loop holds the motor stuck through many small load reversals. Measured relative errors of σ0 on
+# seeds 21/22/23: 1.7 %, 11 %, 3.4 %, the same with an ideal (unquantised) encoder (11.3 % on seed 22), so the
+# error is not resolution: it is the surrogate's bristle state integrated at the 1 kHz log rate against
+# MuJoCo's at the physics step, largest for the softest draw (seed 22, σ0 = 4.8e3 N·m/rad). Tolerance 15 %.
+PRESLIDING_TOLERANCE = 0.15
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("seed", SEEDS)
+def test_presliding_is_recovered_with_a_fine_motor_encoder(seed):
+    """With a 22-bit motor encoder the same analysis declares presliding revealable, names it and recovers σ0."""
+    log, rig, truth = hidden_effect_log("locked_pi_current", ["presliding_friction"], seed, DURATION_S,
+                                        motor_encoder_counts=FINE_MOTOR_ENCODER_COUNTS)
+    result = analyse(log, rig)
+    assert "presliding_friction" not in result.baseline["not_identifiable"]
+    _check(result, truth, "presliding_friction", {"presliding_stiffness": (PRESLIDING_TOLERANCE, "relative")})
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("seed", (31, 32, 33))
+@pytest.mark.parametrize("experiment", [
+    "locked", "locked_pi_current",
+    pytest.param("free", marks=pytest.mark.xfail(
+        strict=True, reason="measured: with the 22-bit encoder the free baseline logs (seeds 31-34) give a "
+                            "spurious coulomb_friction; the surrogate's stick threshold and LuGre were tuned "
+                            "against 16-bit logs (not resolved)")),
+])
+def test_no_false_positives_with_a_fine_motor_encoder(experiment, seed):
+    """Baseline logs with the 22-bit motor encoder give no finding."""
+    log, rig, _ = hidden_effect_log(experiment, [], seed, DURATION_S, motor_encoder_counts=FINE_MOTOR_ENCODER_COUNTS)
+    assert analyse(log, rig).found == []
 
 
 @pytest.mark.slow

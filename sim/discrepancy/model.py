@@ -51,7 +51,7 @@ RIGID_STICK_FRACTION = 0.01  # rigid joint: stuck below 1 % of the log's RMS vel
 # impulse response (~1/f_c each side), which the sign of the filtered velocity cannot place. On the slide
 # experiment those samples carried the baseline effort residual (0.39 N RMS within 20 ms of a transition,
 # 0.004 N beyond 100 ms) and pulled a fitted dead time 0.6-0.8 ms long (it correlates with the jerk there);
-# with one period excluded the dead time comes out within 0.15 ms (measured, tests/test_discrepancy_sweep.py).
+# with one period excluded it comes out 0.04 ms short on seeds 21-23 (measured, tests/test_discrepancy_sweep.py).
 RIGID_TRANSITION_GUARD_PERIODS = 1.0
 # Testbed: the load-dependent dry friction counts as stuck (a band) below 20 % of the Stribeck velocity. The
 # filtered velocity smears reversals over ~1/f_c while MuJoCo's frictionloss flips sign at once; 2 % left a

@@ -96,8 +96,11 @@ def test_presliding_is_declared_unrevealable_at_the_encoder_resolution():
 # Presliding with a fine motor encoder (22 bits per motor turn), hidden in the closed-loop current-feedback log:
 # the torque loop holds the motor stuck through many small load reversals. Measured relative errors of σ0 on
 # seeds 21/22/23: 1.7 %, 11 %, 3.4 %, the same with an ideal (unquantised) encoder (11.3 % on seed 22), so the
-# error is not resolution: it is the surrogate's bristle state integrated at the 1 kHz log rate against
-# MuJoCo's at the physics step, largest for the softest draw (seed 22, σ0 = 4.8e3 N·m/rad). Tolerance 15 %.
+# error is not resolution but the surrogate's presliding against MuJoCo's dcmotor LuGre (the surrogate drives
+# the bristle state with the measured motion at the 1 kHz log rate, MuJoCo integrates it at its physics step;
+# not separated further), largest for the softest draw (seed 22, σ0 = 4.8e3 N·m/rad). Tolerance 15 %.
+# The open-loop locked swing does not reveal it even with an ideal encoder: σ0 9 % off and a 8.4 % held-out
+# gain, below the 10 % rule (seed 21).
 PRESLIDING_TOLERANCE = 0.15
 
 
@@ -114,15 +117,13 @@ def test_presliding_is_recovered_with_a_fine_motor_encoder(seed):
 
 @pytest.mark.slow
 @pytest.mark.parametrize("seed", (31, 32, 33))
-@pytest.mark.parametrize("experiment", [
-    "locked", "locked_pi_current",
-    pytest.param("free", marks=pytest.mark.xfail(
-        strict=True, reason="measured: with the 22-bit encoder the free baseline logs (seeds 31-35) give a "
-                            "spurious coulomb_friction; the surrogate's stick threshold and LuGre were tuned "
-                            "against 16-bit logs (not resolved)")),
-])
+@pytest.mark.parametrize("experiment", [e for e in EXPERIMENTS if e != "slide"])  # the slide has no motor encoder
 def test_no_false_positives_with_a_fine_motor_encoder(experiment, seed):
-    """Baseline logs with the 22-bit motor encoder give no finding."""
+    """Baseline logs with the 22-bit motor encoder give no finding.
+
+    Without the minimum parameter change of the significance rule (AnalysisConfig.min_parameter_change) the free
+    swing's logs gave a Coulomb level 0.8 % off the baseline's with a 16 % held-out gain (seeds 31-35).
+    """
     log, rig, _ = hidden_effect_log(experiment, [], seed, DURATION_S, motor_encoder_counts=FINE_MOTOR_ENCODER_COUNTS)
     assert analyse(log, rig).found == []
 

@@ -20,7 +20,7 @@ Noise (assumed, typical of the parts): torque sensor 5 mN·m white (std), load c
 counts per turn, linear encoder 1 µm. The motor encoder's resolution is a property of the rig: ``motor_encoder_counts``
 of :func:`synth_log` / :func:`hidden_effect_log` makes logs of a finer encoder (``FINE_MOTOR_ENCODER_COUNTS``, a
 22-bit rotor encoder as precision drives carry) or of an ideal one (``None``: no quantisation). Presliding
-friction needs the fine one (docs/discrepancy.md, "Excitation").
+friction needs the fine one (docs/discrepancy.md, "Effects and the experiments that reveal them").
 """
 
 from __future__ import annotations

@@ -16,6 +16,7 @@ from experiments import discrepancy as cli
 from sim.discrepancy.analysis import analyse
 from sim.discrepancy.model import Surrogate, baseline_theta, bristle_state
 from sim.discrepancy.rig import load_rig, rig_from_dict, rig_to_toml
+from sim.discrepancy.selection import moved_enough
 from sim.discrepancy.signals import AnalysisConfig, prepare
 from sim.discrepancy.simulate import run_testbed
 from sim.discrepancy.simulate import testbed_plant as build_testbed_plant
@@ -55,6 +56,19 @@ def test_surrogate_explains_baseline_mujoco_logs(experiment):
     effort_rms = float(np.sqrt(np.mean(r["effort"][data.held] ** 2)))
     assert effort_rms < SURROGATE_EFFORT_FRACTION * float(np.sqrt(np.mean(data.u ** 2)))
     assert float(np.sqrt(np.mean(r["sensor"][data.held] ** 2))) < 2 * TAU_SENSOR_NOISE_NM
+
+
+def test_baseline_effect_must_move_its_parameter_to_count():
+    """A baseline effect with another value counts only if the value moves by min_parameter_change; new ones always."""
+    before = {"coulomb": 0.09, "breakaway": 0.13, "stribeck_velocity": 0.05, "delay": 0.0, "asymmetry": 0.0}
+    change = AnalysisConfig().min_parameter_change
+    assert not moved_enough("coulomb_friction", before, {**before, "coulomb": 0.09 * (1 + 0.5 * change)}, change)
+    assert moved_enough("coulomb_friction", before, {**before, "coulomb": 0.09 * (1 - 1.5 * change)}, change)
+    assert moved_enough("stribeck_friction", before, {**before, "stribeck_velocity": 0.05 * (1 + 2 * change)},
+                        change)
+    # a zero baseline value (no dead time on the rig) or an added effect has nothing to move from
+    assert moved_enough("transport_delay", before, {**before, "delay": 1e-6}, change)
+    assert moved_enough("asymmetric_friction", before, {**before, "asymmetry": 1e-6}, change)
 
 
 def test_native_cogging_has_the_amplitude_and_period_the_surrogate_uses():

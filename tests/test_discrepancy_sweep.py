@@ -10,7 +10,7 @@ import math
 import pytest
 
 from sim.discrepancy.analysis import analyse
-from sim.discrepancy.synth import EXPERIMENTS, hidden_effect_log
+from sim.discrepancy.synth import EXPERIMENTS, FINE_MOTOR_ENCODER_COUNTS, hidden_effect_log
 
 SEEDS = (21, 22, 23)
 DURATION_S = 10.0
@@ -72,11 +72,14 @@ def test_slide_rig_effects_are_found(effect, seed):
 
 
 @pytest.mark.slow
-@pytest.mark.xfail(reason="measured: the slide's dead time comes out 0.6-0.8 ms long (MuJoCo actuator delay on "
-                          "the rigid joint against the surrogate's hold-centred delay; not resolved)", strict=True)
 @pytest.mark.parametrize("seed", SEEDS)
 def test_slide_dead_time_is_recovered(seed):
-    """A dead time hidden in the slide's drive is found and recovered within a third of a sample."""
+    """A dead time hidden in the slide's drive is found and recovered within a third of a sample.
+
+    It came out 0.6-0.8 ms long while the slide's effort samples next to stick-slip transitions counted (the
+    friction jump smeared by the filter) and MuJoCo's zero-order-hold delay rounded the dead time up to a
+    physics step; see RIGID_TRANSITION_GUARD_PERIODS (sim.discrepancy.model) and rigid_xml's interpolation.
+    """
     log, rig, truth = hidden_effect_log("slide", ["transport_delay"], seed, DURATION_S)
     _check(analyse(log, rig), truth, "transport_delay", {"delay": (3e-4, "absolute")})
 
@@ -88,6 +91,41 @@ def test_presliding_is_declared_unrevealable_at_the_encoder_resolution():
     result = analyse(log, rig)
     assert "resolution" in result.baseline["not_identifiable"]["presliding_friction"]
     assert "presliding_friction" not in result.found
+
+
+# Presliding with a fine motor encoder (22 bits per motor turn), hidden in the closed-loop current-feedback log:
+# the torque loop holds the motor stuck through many small load reversals. Measured relative errors of σ0 on
+# seeds 21/22/23: 1.7 %, 11 %, 3.4 %, the same with an ideal (unquantised) encoder (11.3 % on seed 22), so the
+# error is not resolution but the surrogate's presliding against MuJoCo's dcmotor LuGre (the surrogate drives
+# the bristle state with the measured motion at the 1 kHz log rate, MuJoCo integrates it at its physics step;
+# not separated further), largest for the softest draw (seed 22, σ0 = 4.8e3 N·m/rad). Tolerance 15 %.
+# The open-loop locked swing does not reveal it even with an ideal encoder: σ0 9 % off and a 8.4 % held-out
+# gain, below the 10 % rule (seed 21).
+PRESLIDING_TOLERANCE = 0.15
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("seed", SEEDS)
+def test_presliding_is_recovered_with_a_fine_motor_encoder(seed):
+    """With a 22-bit motor encoder the same analysis declares presliding revealable, names it and recovers σ0."""
+    log, rig, truth = hidden_effect_log("locked_pi_current", ["presliding_friction"], seed, DURATION_S,
+                                        motor_encoder_counts=FINE_MOTOR_ENCODER_COUNTS)
+    result = analyse(log, rig)
+    assert "presliding_friction" not in result.baseline["not_identifiable"]
+    _check(result, truth, "presliding_friction", {"presliding_stiffness": (PRESLIDING_TOLERANCE, "relative")})
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("seed", (31, 32, 33))
+@pytest.mark.parametrize("experiment", [e for e in EXPERIMENTS if e != "slide"])  # the slide has no motor encoder
+def test_no_false_positives_with_a_fine_motor_encoder(experiment, seed):
+    """Baseline logs with the 22-bit motor encoder give no finding.
+
+    Without the minimum parameter change of the significance rule (AnalysisConfig.min_parameter_change) the free
+    swing's logs gave a Coulomb level 0.8 % off the baseline's with a 16 % held-out gain (seeds 31-35).
+    """
+    log, rig, _ = hidden_effect_log(experiment, [], seed, DURATION_S, motor_encoder_counts=FINE_MOTOR_ENCODER_COUNTS)
+    assert analyse(log, rig).found == []
 
 
 @pytest.mark.slow

@@ -22,7 +22,7 @@ from typing import Any
 import numpy as np
 
 from sim.discrepancy.diagnostics import EVIDENCE, Signature, autocorrelation, identifiability, score_signatures
-from sim.discrepancy.effects import EFFECTS, NEUTRAL
+from sim.discrepancy.effects import EFFECTS, NATIVE_KEYS, NEUTRAL
 from sim.discrepancy.fit import fit_keys
 from sim.discrepancy.model import Surrogate, baseline_theta, channel_unit
 from sim.discrepancy.rig import AddedEffect, Rig, check_rig_matches_log
@@ -43,8 +43,6 @@ CHANNEL_MEANING = {
     "sensor": "torque sensor minus the transmitted torque the model predicts it reads",
     "kinematic": "motor angle minus lever angle minus flexure twist, against the backlash model",
 }
-NATIVE_KEYS = {"coulomb", "viscous", "breakaway", "stribeck_velocity", "load_coefficient", "presliding_stiffness",
-               "backlash_width", "delay"}  # parameters the baseline model carries natively
 
 
 @dataclass(frozen=True)
@@ -226,6 +224,7 @@ def analyse(log: RunLog, rig: Rig, config: AnalysisConfig | None = None, *, prog
         "not_identifiable": not_identifiable,
         "candidates": [[s.to_dict() for s in scores] for scores in rounds],
         "significance_rule": {"min_ic_drop": config.min_ic_drop, "min_relative_gain": config.min_relative_gain,
+                              "min_parameter_change": config.min_parameter_change,
                               "criterion": "held-out BIC over independent samples (x 2 f_c / f_s)"},
         "config": config.to_dict(),
         "timings_s": timings,

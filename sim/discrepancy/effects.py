@@ -136,6 +136,12 @@ NEUTRAL: dict[str, float] = {
 }
 
 
+# Parameters the baseline model carries natively (the testbed's sim.params, a rigid joint's friction and delay):
+# an effect made only of these, with nonzero current values, is a baseline effect with another value.
+NATIVE_KEYS = frozenset({"coulomb", "viscous", "breakaway", "stribeck_velocity", "load_coefficient",
+                         "presliding_stiffness", "backlash_width", "delay"})
+
+
 def spec(name: str) -> EffectSpec:
     """The effect called ``name``; an unknown name raises ``KeyError`` listing the library."""
     try:

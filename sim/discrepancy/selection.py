@@ -10,7 +10,10 @@ accepted only if **both** hold:
    number of the effect's fitted parameters;
 2. minimum relative gain: in some channel, the held-out RMSE falls by at least ``min_relative_gain`` of the
    *baseline's* held-out RMSE (before any finding), so that a later effect cannot pass by polishing a
-   residual the earlier findings already brought down to the surrogate's own mismatch.
+   residual the earlier findings already brought down to the surrogate's own mismatch;
+3. minimum parameter change, for an effect the baseline already carries (all its parameters native to the
+   baseline model and nonzero in the current one): one of them moves by at least ``min_parameter_change`` of
+   its current value (a baseline effect with another value must differ by more than the analysis can state).
 
 Rounds repeat with the extended model until no candidate passes; none passing at all is the verdict
 "no significant discrepancy". Candidate fits of a round run in parallel processes (``config.workers``).
@@ -24,7 +27,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from sim.discrepancy.effects import EFFECTS
+from sim.discrepancy.effects import EFFECTS, NATIVE_KEYS
 from sim.discrepancy.fit import FitOutcome, effect_starts, fit_keys
 from sim.discrepancy.model import Surrogate
 
@@ -99,9 +102,22 @@ def _init_worker(surrogate: Surrogate) -> None:
     _WORKER["surrogate"] = surrogate
 
 
+def moved_enough(effect: str, before: dict[str, float], after: dict[str, float], min_change: float) -> bool:
+    """Whether ``effect`` is new to the model or moves one of its baseline parameters by ``min_change`` [1].
+
+    An effect counts as already in the model when all its parameters are native baseline parameters
+    (``NATIVE_KEYS``) with nonzero values in ``before``; it then needs ``|after - before| >= min_change·|before|``
+    for at least one parameter.
+    """
+    keys = EFFECTS[effect].keys
+    if not all(k in NATIVE_KEYS and before.get(k, 0.0) != 0.0 for k in keys):
+        return True
+    return any(abs(after[k] - before[k]) >= min_change * abs(before[k]) for k in keys)
+
+
 def fit_candidate(surrogate: Surrogate, effect: str, theta: dict[str, float], free: tuple[str, ...],
                   scales: dict[str, float], before: ChannelScore, config_gain: float, config_ic: float,
-                  baseline: ChannelScore) -> CandidateScore:
+                  baseline: ChannelScore, config_change: float = 0.0) -> CandidateScore:
     """Fit one effect (with the free baseline parameters) and score it against ``before``."""
     import time
 
@@ -113,7 +129,8 @@ def fit_candidate(surrogate: Surrogate, effect: str, theta: dict[str, float], fr
     n_params = len(EFFECTS[effect].keys)
     delta, gains = compare(before, after, n_params)
     gains_of_baseline = {c: (before.rmse[c] - after.rmse[c]) / baseline.rmse[c] for c in gains}
-    passes = delta < -config_ic and bool(gains) and max(gains_of_baseline.values()) >= config_gain
+    passes = (delta < -config_ic and bool(gains) and max(gains_of_baseline.values()) >= config_gain
+              and moved_enough(effect, theta, outcome.theta, config_change))
     return CandidateScore(effect, outcome, after, delta, gains, passes, time.perf_counter() - start)
 
 
@@ -126,8 +143,8 @@ def run_round(surrogate: Surrogate, candidates: list[str], theta: dict[str, floa
               pool: ProcessPoolExecutor | None) -> list[CandidateScore]:
     """Fit and score every candidate (in ``pool`` if given), best ΔBIC first."""
     cfg = surrogate.config
-    args = [(effect, theta, free, scales, before, cfg.min_relative_gain, cfg.min_ic_drop, baseline)
-            for effect in candidates]
+    args = [(effect, theta, free, scales, before, cfg.min_relative_gain, cfg.min_ic_drop, baseline,
+             cfg.min_parameter_change) for effect in candidates]
     if pool is None:
         scores = [fit_candidate(surrogate, *a) for a in args]
     else:

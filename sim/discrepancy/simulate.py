@@ -15,7 +15,7 @@ Effects reach MuJoCo as natively as MuJoCo allows:
 - sensor effects act on the sensor reading, not the mechanics (applied in :mod:`sim.discrepancy.synth`).
 
 A rigid joint is a one-body MJCF: ``frictionloss`` (Coulomb with stick), ``damping`` (viscous), a ``motor``
-actuator with the effort gain and the command ``delay``; gravity and cogging through a second actuator
+actuator with the effort gain and the command ``delay`` (history linearly interpolated); gravity and cogging through a second actuator
 (one tick late, as above). MuJoCo has no Stribeck curve on a plain joint, so a rigid joint with
 breakaway > coulomb is not simulated here (the analysis still models it).
 """
@@ -142,7 +142,10 @@ def rigid_xml(rig: Rig) -> str:
     inertial = (f'mass="{v["inertia"]:.9g}" diaginertia="1 1 1"' if rig.joint == "slide" else
                 f'mass="1" diaginertia="{v["inertia"]:.9g} {v["inertia"]:.9g} {v["inertia"]:.9g}"')
     delay = v.get("delay", 0.0)
-    delay_attr = f'delay="{delay:.9g}" nsample="{int(delay / h) + 2}"' if delay > 0 else ""
+    # linear interpolation of the command history: with the default zero-order hold MuJoCo rounds the dead time
+    # up to a whole physics step (measured: 4.42 ms acted as 4.6 ms); interpolated, a command step acts after
+    # the stated delay on average (its impulse arrives exactly ``delay`` late)
+    delay_attr = f'delay="{delay:.9g}" interp="linear" nsample="{int(delay / h) + 2}"' if delay > 0 else ""
     jtype = "slide" if rig.joint == "slide" else "hinge"
     axis = "1 0 0" if rig.joint == "slide" else "0 0 1"
     imp = RIGID_FRICTION_IMPEDANCE

@@ -17,7 +17,10 @@ Experiments (which make which effect identifiable, see ``docs/discrepancy.md``):
 
 Noise (assumed, typical of the parts): torque sensor 5 mN·m white (std), load cell 0.05 N (0.01 % of its
 500 N), motor encoder 2^16 counts per motor turn (output-referred step 2π/(2^16·N)), lever encoder 2^17
-counts per turn, linear encoder 1 µm.
+counts per turn, linear encoder 1 µm. The motor encoder's resolution is a property of the rig: ``motor_encoder_counts``
+of :func:`synth_log` / :func:`hidden_effect_log` makes logs of a finer encoder (``FINE_MOTOR_ENCODER_COUNTS``, a
+22-bit rotor encoder as precision drives carry) or of an ideal one (``None``: no quantisation). Presliding
+friction needs the fine one (docs/discrepancy.md, "Effects and the experiments that reveal them").
 """
 
 from __future__ import annotations
@@ -37,6 +40,9 @@ from sim.runlog import RunLog
 TAU_SENSOR_NOISE_NM = 5e-3  # assumed: calibrated optical sensor, white noise std at 1 kHz
 LOADCELL_NOISE_N = 0.05  # assumed: 0.01 % of the SBA-50L's 500 N
 MOTOR_ENCODER_COUNTS = 2**16  # assumed: counts per motor turn (16-bit magnetic encoder on the rotor)
+# a high-resolution rotor encoder (22 bits per turn: optical/inductive absolute encoders of precision servo drives
+# reach 20-26 bits); resolves a tenth of the presliding displacement F_s/σ0 (>= 1.6e-5 rad in the drawn range)
+FINE_MOTOR_ENCODER_COUNTS = 2**22
 LEVER_ENCODER_COUNTS = 2**17  # assumed: absolute output encoder, counts per turn
 LINEAR_ENCODER_STEP_M = 1e-6  # assumed: 1 µm linear scale
 CHAMBER_RAMP_K = 10.0  # board temperature rise over a log in the chamber [K]
@@ -164,10 +170,30 @@ def _quantise(x: np.ndarray, step: float) -> np.ndarray:
     return np.round(x / step) * step
 
 
-def synth_log(experiment: str, truth: Rig, duration_s: float, seed: int) -> RunLog:
-    """A measured-like log of ``experiment`` run on the ``truth`` rig, with sensor noise drawn from ``seed``."""
+def synth_log(experiment: str, truth: Rig, duration_s: float, seed: int, *,
+              motor_encoder_counts: int | None = MOTOR_ENCODER_COUNTS) -> RunLog:
+    """A measured-like log of ``experiment`` run on the ``truth`` rig, with sensor noise drawn from ``seed``.
+
+    Parameters
+    ----------
+    experiment : str
+        One of ``EXPERIMENTS``.
+    truth : Rig
+        The rig that produces the log (hidden effects included).
+    duration_s : float
+        Log length [s] (1 kHz samples).
+    seed : int
+        Seed of the sensor noise.
+    motor_encoder_counts : int or None
+        Motor encoder counts per motor turn [1] (``q_motor`` is quantised to 2π/(counts·N) at the output);
+        None: an ideal encoder (no quantisation). Ignored by the slide (no motor encoder).
+    """
     if experiment not in EXPERIMENTS:
         raise ValueError(f"experiment = {experiment!r}: valid values are {', '.join(EXPERIMENTS)}")
+    if motor_encoder_counts is not None and (int(motor_encoder_counts) != motor_encoder_counts
+                                             or motor_encoder_counts < 1):
+        raise ValueError(f"motor_encoder_counts = {motor_encoder_counts!r}: a positive integer (counts per motor "
+                         "turn) or None (ideal encoder)")
     rng = np.random.default_rng(seed)
     n = int(round(duration_s / 1e-3))
     t_of = lambda k: k * 1e-3  # noqa: E731  (command k is sent at the start of tick k)
@@ -216,20 +242,28 @@ def synth_log(experiment: str, truth: Rig, duration_s: float, seed: int) -> RunL
     tau_sensor = _sensor_reading(truth, c["tau_flexure"], temperature) + noise_tau
     cols = {"time": c["time"], "tau_cmd": c["tau_cmd"],
             "q": _quantise(c["q"], 2 * math.pi / LEVER_ENCODER_COUNTS),
-            "q_motor": _quantise(c["q_motor"], 2 * math.pi / (MOTOR_ENCODER_COUNTS * n_gear)),
+            "q_motor": (c["q_motor"] if motor_encoder_counts is None else
+                        _quantise(c["q_motor"], 2 * math.pi / (motor_encoder_counts * n_gear))),
             "tau_sensor": tau_sensor, "temperature": temperature}
     units = {"time": "s", "tau_cmd": "N·m", "q": "rad", "q_motor": "rad", "tau_sensor": "N·m", "temperature": "°C"}
     if truth.fixture == "locked":
         cols["force_loadcell"] = c["force_loadcell"] + rng.normal(0.0, LOADCELL_NOISE_N, n)
         units["force_loadcell"] = "N"
-    return RunLog(cols, units, {"experiment": experiment, "seed": seed, "fixture": truth.fixture})
+    return RunLog(cols, units, {"experiment": experiment, "seed": seed, "fixture": truth.fixture,
+                                "motor_encoder_counts": motor_encoder_counts})
 
 
-def hidden_effect_log(experiment: str, effects: list[str], seed: int,
-                      duration_s: float) -> tuple[RunLog, Rig, HiddenTruth]:
-    """A log with ``effects`` hidden at random values (drawn from ``seed``), the baseline rig, and the truth."""
+def hidden_effect_log(experiment: str, effects: list[str], seed: int, duration_s: float, *,
+                      motor_encoder_counts: int | None = MOTOR_ENCODER_COUNTS) -> tuple[RunLog, Rig, HiddenTruth]:
+    """A log with ``effects`` hidden at random values (drawn from ``seed``), the baseline rig, and the truth.
+
+    ``motor_encoder_counts``: counts per motor turn of the log's motor encoder, None for an ideal one (see
+    :func:`synth_log`). The analysis is not told: it reads the resolution from the log (smallest step of
+    ``q_motor``).
+    """
     baseline = baseline_rig(experiment)
     rng = np.random.default_rng(seed)
     drawn = {name: draw_effect(name, baseline, rng) for name in effects}
     truth = truth_rig(baseline, drawn)
-    return synth_log(experiment, truth.rig, duration_s, seed), baseline, truth
+    log = synth_log(experiment, truth.rig, duration_s, seed, motor_encoder_counts=motor_encoder_counts)
+    return log, baseline, truth

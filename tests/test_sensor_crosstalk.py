@@ -1,0 +1,74 @@
+"""Crosstalk of the simulated sensor (Table IV): what the figure is made of.
+
+The calibration (:func:`sensor.evaluation.calibrate`) sees the T_x/T_y moment records, so it nulls every
+deterministic tilt response of the channels; what the crosstalk figure then measures is the largest noise
+excursion of the calibrated output over the moment test. Without the moment records (a T_z-only fit) the tilt
+response is left uncancelled. These tests pin both facts (docs/issue3_figures.md explains why the figure stays
+below the paper's 0.148 / 0.126 % FS).
+"""
+
+import numpy as np
+import pytest
+
+from sensor import metrics
+from sensor.calibration import FS_NM, select_gamma
+from sensor.evaluation import RESOLUTION_LAMBDA_WEIGHT, evaluate_sensor, leading_quiet_segment
+from sensor.photoreflector import PhotoReflectorArray
+from sensor.protocol import Schedule, record
+from sim.params import TestbedParams
+
+PAPER_CROSSTALK_PCT_FS = {"x": 0.148, "y": 0.126}  # paper Table IV
+
+
+@pytest.fixture(scope="module")
+def evaluations():
+    return {seed: evaluate_sensor(seed=seed) for seed in (0, 1)}
+
+
+def _apparent(ev, axis):
+    rec = ev.crosstalk_records[axis]
+    out = ev.qp.predict(rec.voltages_v)
+    return rec, out - out[rec.schedule.branch == 0].mean()
+
+
+def _no_load_max_excursion(ev, n, seed):
+    """Largest |output - mean| of the QP output over a no-load record of n samples [N·m]."""
+    array = PhotoReflectorArray(TestbedParams(), seed=seed)
+    z = np.zeros(n)
+    rec = record(Schedule(z, z.copy(), z.copy(), z.copy(), z.copy(), np.zeros(n, dtype=int)), array,
+                 np.random.default_rng(seed))
+    q = ev.qp.predict(rec.voltages_v)
+    return float(np.max(np.abs(q - q.mean())))
+
+
+@pytest.mark.parametrize("axis", ["x", "y"])
+def test_crosstalk_is_nonzero_stable_across_seeds_and_made_of_noise(evaluations, axis):
+    """Figure > 0, within 25 % between seeds; the held-level means (the deterministic tilt response left
+    after calibration) are under a third of it, and it lies within [0.7, 1.6] x the largest noise excursion of
+    the calibrated output over an equally long no-load record."""
+    figs = [evaluations[s].figures[f"crosstalk_t{axis}_pct_fs"][0] for s in (0, 1)]
+    assert min(figs) > 0.0
+    assert abs(figs[0] - figs[1]) / figs[0] < 0.25
+    ev = evaluations[0]
+    rec, apparent = _apparent(ev, axis)
+    levels = rec.schedule.level_nm
+    held = np.unique(levels[~np.isnan(levels)])
+    deterministic = max(abs(apparent[levels == lv].mean()) for lv in held)
+    figure_nm = figs[0] / 100.0 * FS_NM
+    assert deterministic < figure_nm / 3.0
+    floor = _no_load_max_excursion(ev, len(apparent), seed=77)
+    assert 0.7 * floor <= figure_nm <= 1.6 * floor
+
+
+@pytest.mark.parametrize("axis", ["x", "y"])
+def test_a_tz_only_calibration_leaves_the_tilt_response_uncancelled(evaluations, axis):
+    """Fitted on the T_z loading record alone, the QP's unequal channel weights do not cancel the ~60 mV tilt
+    response: the crosstalk exceeds the paper's figure (which is why the moment records are calibration data)."""
+    ev = evaluations[0]
+    cal = ev.calibration_record
+    qp_tz_only = select_gamma(cal.voltages_v, cal.tau_reference_nm,
+                              quiet_mask=leading_quiet_segment(cal.tau_reference_nm),
+                              lambda_weight=RESOLUTION_LAMBDA_WEIGHT).calibration
+    rec = ev.crosstalk_records[axis]
+    xt = metrics.crosstalk(qp_tz_only.predict(rec.voltages_v), tare_mask=rec.schedule.branch == 0)
+    assert xt.crosstalk_pct_fs > PAPER_CROSSTALK_PCT_FS[axis]

@@ -103,9 +103,9 @@ def _log_geometry(rec: rr.RecordingStream, root: str, params: TestbedParams, fix
                 boxes.append((center, size[:3].copy(), colour))
         path = f"{root}/testbed/{entity}"
         if cylinders:
-            rec.log(f"{path}/cylinders", rr.Cylinders3D(centers=[c[0] for c in cylinders], radii=[c[1] for c in cylinders],
-                                                         lengths=[c[2] for c in cylinders],
-                                                         colors=[c[3] for c in cylinders]), static=True)
+            centers, radii, lengths, colours = zip(*cylinders, strict=True)
+            rec.log(f"{path}/cylinders", rr.Cylinders3D(centers=centers, radii=radii, lengths=lengths, colors=colours),
+                    static=True)
         if boxes:
             rec.log(f"{path}/boxes", rr.Boxes3D(centers=[b[0] for b in boxes], half_sizes=[b[1] for b in boxes],
                                                 colors=[b[2] for b in boxes]), static=True)

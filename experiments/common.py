@@ -73,12 +73,15 @@ def add_rerun_args(parser: argparse.ArgumentParser, what: str = "every run's log
     parser.add_argument("--rerun-spawn", action="store_true", help=f"open the rerun viewer on {what}")
 
 
-def record_rerun(args: argparse.Namespace, logs: dict[str, Any], params: TestbedParams | None = None) -> None:
-    """Record ``logs`` (run name -> :class:`sim.runlog.RunLog`) as --rerun / --rerun-spawn ask (nothing if
-    neither was given)."""
+def record_rerun(args: argparse.Namespace, logs, params: TestbedParams | None = None) -> None:
+    """Record ``logs`` (run name -> :class:`sim.runlog.RunLog`, or a function returning that, called only
+    when recording) as --rerun / --rerun-spawn ask (nothing if neither was given)."""
     if not (getattr(args, "rerun", None) or getattr(args, "rerun_spawn", False)):
         return
     from sim.recording import record_logs
+
+    if callable(logs):
+        logs = logs()
 
     summary = record_logs(logs, params, path=args.rerun, spawn=args.rerun_spawn)
     if summary.path is not None:

@@ -117,3 +117,19 @@ def test_bad_arguments_are_refused_by_name(tmp_path, sensor_log):
     with pytest.raises(ValueError, match="pose_rate_hz"):
         record_logs({"a": sensor_log}, path=tmp_path / "d.rrd", pose_rate_hz=0.0)
     assert entity_name("step 0.05 N·m, sensor") == "step_0.05_N_m_sensor"
+
+
+def test_experiment_commands_write_their_runs_to_rerun(tmp_path, capsys):
+    """experiments.step and experiments.open_loop_step with --rerun record one entity root per run."""
+    from experiments import open_loop_step, step
+
+    path = tmp_path / "step.rrd"
+    step.main(["--feedback", "current", "--duration", "0.05", "--plot", str(tmp_path), "--rerun", str(path)])
+    rows, _ = read_back(path)
+    assert rows["/step_0.05_N_m_current/torque/reference"] == 550  # 0.5 s before the step + 0.05 s
+    assert "/disturbance_current/torque/loadcell" in rows
+    path = tmp_path / "open.rrd"
+    open_loop_step.main(["--duration", "0.05", "--rerun", str(path)])
+    rows, _ = read_back(path)
+    assert rows["/open-loop_step_0.1_N_m/torque/command"] == 50
+    assert "rerun recording" in capsys.readouterr().out

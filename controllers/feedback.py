@@ -50,10 +50,10 @@ class SensorFeedback:
 
     kind = "sensor"
 
-    def __init__(self, params: TestbedParams | None = None, seed: int = 0) -> None:
+    def __init__(self, params: TestbedParams | None = None, seed: int = 0, calibration=None) -> None:
         from sensor.readout import TorqueSensorReadout
 
-        self.readout = TorqueSensorReadout(params, seed=seed)
+        self.readout = TorqueSensorReadout(params, calibration, seed=seed)
 
     def read(self, plant) -> float:
         return self.readout.read_plant(plant)
@@ -61,11 +61,19 @@ class SensorFeedback:
     def reset(self) -> None:
         self.readout.reset()
 
+    @property
+    def voltages_v(self):
+        """The eight channel voltages [V] of the last read (NaN before the first)."""
+        return self.readout.voltages_v
 
-def make_feedback(kind: str, params: TestbedParams | None = None, seed: int = 0) -> TorqueFeedback:
-    """The feedback source named ``kind`` ('current' or 'sensor'); ``seed`` drives the sensor's noise."""
+
+def make_feedback(kind: str, params: TestbedParams | None = None, seed: int = 0,
+                  calibration=None) -> TorqueFeedback:
+    """The feedback source named ``kind`` ('current' or 'sensor'); ``seed`` drives the sensor's noise;
+    ``calibration`` (a :class:`sensor.calibration.Calibration`) replaces the sensor's factory calibration of
+    ``params`` (e.g. the nominal unit's calibration read by a unit whose parameters drifted)."""
     if kind == "current":
         return CurrentFeedback(CurrentToTorqueMap.from_params(params or TestbedParams()))
     if kind == "sensor":
-        return SensorFeedback(params, seed)
+        return SensorFeedback(params, seed, calibration)
     raise ValueError(f"feedback = {kind!r}: valid values are {', '.join(FEEDBACK_KINDS)}")

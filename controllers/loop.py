@@ -36,6 +36,13 @@ def _columns(names: list[str], out: np.ndarray, extra: dict[str, np.ndarray], ti
     return {"time": times, **{name: out[:, i].copy() for i, name in enumerate(names)}, **extra}
 
 
+def _add_voltages(extra: dict, units: dict, volts: np.ndarray) -> None:
+    """The sensor's eight channel voltages of each tick's read as the standard columns v1..v8 [V]."""
+    for i in range(volts.shape[1]):
+        extra[f"v{i + 1}"] = volts[:, i].copy()
+        units[f"v{i + 1}"] = "V"
+
+
 def _check_profile(name: str, values, n: int) -> np.ndarray:
     if values is None:
         return np.zeros(n)
@@ -71,7 +78,8 @@ def run_torque_loop(plant: Plant, controller: PITorqueController, feedback: Torq
     -------
     RunLog
         The plant's signals (``sim.plant.SIGNAL_UNITS``) plus ``tau_ref``, ``tau_feedback`` (the measured
-        torque the controller used), ``tau_ext`` and ``tau_hub`` [N·m], and ``tau_sensor`` in sensor mode.
+        torque the controller used), ``tau_ext`` and ``tau_hub`` [N·m], and in sensor mode ``tau_sensor`` and the
+        channel voltages ``v1`` ... ``v8`` [V] it was computed from.
     """
     tau_ref = _check_profile("tau_ref_nm", tau_ref_nm, len(np.atleast_1d(tau_ref_nm)))
     n = len(tau_ref)
@@ -82,8 +90,11 @@ def run_torque_loop(plant: Plant, controller: PITorqueController, feedback: Torq
     bar = Progress(progress_label, n, plant.params.simulation.control_period_s) if progress_label else None
     use_hub = bool(np.any(tau_hub))
     delivered = CurrentToTorqueMap.from_params(plant.params).delivered_nm
+    volts = np.empty((n, 8)) if feedback.kind == "sensor" else None
     for k in range(n):
         measured[k] = feedback.read(plant)
+        if volts is not None:
+            volts[k] = feedback.voltages_v
         command = controller.step(tau_ref[k], measured[k])
         if use_hub:
             apply_hub_torque(plant, tau_hub[k])
@@ -98,6 +109,7 @@ def run_torque_loop(plant: Plant, controller: PITorqueController, feedback: Torq
     if feedback.kind == "sensor":
         extra["tau_sensor"] = measured.copy()
         units["tau_sensor"] = "N·m"
+        _add_voltages(extra, units, volts)
     return RunLog(_columns(names, out, extra, times), units,
                   {"fixture": plant.fixture, "feedback": feedback.kind, "physics_timestep_s": plant.timestep_s,
                    "lever_length_m": plant.params.lever.length_m,
@@ -123,7 +135,7 @@ def run_admittance_loop(plant: Plant, controller: AdmittanceController, feedback
     -------
     RunLog
         Plant signals plus ``tau_ext`` (hand torque), ``tau_feedback``, ``theta_ref`` [rad] and
-        ``omega_ref`` [rad/s] of the virtual dynamics, and ``tau_sensor`` in sensor mode.
+        ``omega_ref`` [rad/s] of the virtual dynamics, and in sensor mode ``tau_sensor`` and ``v1`` ... ``v8`` [V].
     """
     n = int(hand.n_ticks)
     names = list(SIGNAL_UNITS)
@@ -131,8 +143,11 @@ def run_admittance_loop(plant: Plant, controller: AdmittanceController, feedback
     measured, hand_torque, theta_ref, omega_ref = (np.empty(n) for _ in range(4))
     bar = Progress(progress_label, n, plant.params.simulation.control_period_s) if progress_label else None
     delivered = CurrentToTorqueMap.from_params(plant.params).delivered_nm
+    volts = np.empty((n, 8)) if feedback.kind == "sensor" else None
     for k in range(n):
         measured[k] = feedback.read(plant)
+        if volts is not None:
+            volts[k] = feedback.voltages_v
         theta_ref[k], omega_ref[k] = controller.reference_angle_rad, controller.reference_velocity_rad_s
         command = controller.step(-measured[k], plant.motor_angle_rad, plant.motor_velocity_rad_s)
         hand_torque[k] = hand.torque_nm(k, plant.output_angle_rad, plant.output_velocity_rad_s)
@@ -147,6 +162,7 @@ def run_admittance_loop(plant: Plant, controller: AdmittanceController, feedback
     if feedback.kind == "sensor":
         extra["tau_sensor"] = measured.copy()
         units["tau_sensor"] = "N·m"
+        _add_voltages(extra, units, volts)
     return RunLog(_columns(names, out, extra, times), units,
                   {"fixture": plant.fixture, "feedback": feedback.kind, "physics_timestep_s": plant.timestep_s,
                    "lever_length_m": plant.params.lever.length_m, **(meta or {})})

@@ -30,7 +30,7 @@ import numpy as np
 from controllers.admittance import AdmittanceController
 from controllers.feedback import make_feedback
 from controllers.loop import run_admittance_loop
-from experiments.common import add_experiment_args, load_params_arg, write_json
+from experiments.common import add_experiment_args, load_params_arg, record_rerun, write_json
 from sim.params import TestbedParams
 from sim.plant import Plant
 from sim.runlog import RunLog
@@ -231,6 +231,7 @@ def main(argv: list[str] | None = None) -> None:
         print(f"wrote {args.json}")
     if args.plot:
         print(f"figure: {plot_admittance(result, args.plot)}")
+    record_rerun(args, {p.name: p.log for p in result.pushes}, params)
 
 
 if __name__ == "__main__":

@@ -17,7 +17,7 @@ from typing import Any
 
 import numpy as np
 
-from experiments.common import add_params_arg, load_params_arg, write_json
+from experiments.common import add_params_arg, add_rerun_args, load_params_arg, record_log, record_rerun, write_json
 from sensor.evaluation import SensorEvaluation, evaluate_sensor
 from sim.params import TestbedParams
 
@@ -138,6 +138,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--json", type=Path, metavar="PATH", help="write {rows: [...]} and the calibrations")
     parser.add_argument("--plot", type=Path, metavar="DIR", help="write PNG figures to DIR")
     add_params_arg(parser)
+    add_rerun_args(parser, "the rig records (channel voltages, MINI85 and QP-sensor torque; no mechanics, no 3D)")
     args = parser.parse_args(argv)
     params = load_params_arg(parser, args)
     print("calibrating on the simulated rig (T_z loading, T_x/T_y moments) and evaluating ...", file=sys.stderr)
@@ -151,6 +152,12 @@ def main(argv: list[str] | None = None) -> int:
         print(f"JSON written to {args.json}")
     for p in result.figures:
         print(f"figure: {p}")
+    ev = result.evaluation
+    records = {"calibration": ev.calibration_record, "evaluation": ev.evaluation_record,
+               "no load": ev.resolution_record}
+    record_rerun(args, lambda: {name: record_log(r.time_s, r.voltages_v, tau_sensor_nm=ev.qp.predict(r.voltages_v),
+                                                 tau_mini85_nm=r.tau_reference_nm, tau_applied_nm=r.tau_true_nm)
+                                for name, r in records.items()}, params)
     return 0
 
 

@@ -50,7 +50,8 @@ FEEDBACK_CHOICES = ("current", "sensor", "both")
 
 
 def add_experiment_args(parser: argparse.ArgumentParser, *, feedback: bool = True) -> None:
-    """The flags every closed-loop experiment takes: --feedback, --seed, --duration, --json, --plot, --params."""
+    """The flags every closed-loop experiment takes: --feedback, --seed, --duration, --json, --plot, --params,
+    --rerun, --rerun-spawn."""
     if feedback:
         parser.add_argument("--feedback", choices=FEEDBACK_CHOICES, default="both",
                             help="torque measurement the PI closes on (default both)")
@@ -62,6 +63,47 @@ def add_experiment_args(parser: argparse.ArgumentParser, *, feedback: bool = Tru
     parser.add_argument("--plot", type=Path, metavar="DIR", default=Path("out"),
                         help="save PNG figures in DIR (default out/)")
     add_params_arg(parser)
+    add_rerun_args(parser)
+
+
+# ---------------------------------------------------------------- rerun recordings (issue 5)
+def add_rerun_args(parser: argparse.ArgumentParser, what: str = "every run's log (3D testbed and time series)") -> None:
+    """--rerun PATH.rrd and --rerun-spawn: record ``what`` with :mod:`sim.recording`."""
+    parser.add_argument("--rerun", type=Path, metavar="PATH.rrd", help=f"write a rerun recording of {what}")
+    parser.add_argument("--rerun-spawn", action="store_true", help=f"open the rerun viewer on {what}")
+
+
+def record_rerun(args: argparse.Namespace, logs, params: TestbedParams | None = None) -> None:
+    """Record ``logs`` (run name -> :class:`sim.runlog.RunLog`, or a function returning that, called only
+    when recording) as --rerun / --rerun-spawn ask (nothing if neither was given)."""
+    if not (getattr(args, "rerun", None) or getattr(args, "rerun_spawn", False)):
+        return
+    from sim.recording import record_logs
+
+    if callable(logs):
+        logs = logs()
+
+    summary = record_logs(logs, params, path=args.rerun, spawn=args.rerun_spawn)
+    if summary.path is not None:
+        print(f"rerun recording: {summary.path} ({len(summary.runs)} runs)")
+
+
+def record_log(time_s, voltages_v, *, tau_sensor_nm=None, tau_mini85_nm=None, tau_applied_nm=None,
+               temperature_c=None, meta: dict | None = None):
+    """A :class:`sim.runlog.RunLog` of a sensor record without mechanics (calibration rig, chamber): time [s],
+    channel voltages (N, 8) [V] as v1..v8, and the torques [N·m] and TMP117 temperature [°C] given."""
+    from sim.runlog import RunLog
+
+    columns = {"time": np.asarray(time_s, dtype=float)}
+    units = {"time": "s"}
+    volts = np.asarray(voltages_v, dtype=float)
+    for k in range(volts.shape[1]):
+        columns[f"v{k + 1}"], units[f"v{k + 1}"] = volts[:, k], "V"
+    for name, values, unit in (("tau_sensor", tau_sensor_nm, "N·m"), ("tau_mini85", tau_mini85_nm, "N·m"),
+                               ("tau_applied", tau_applied_nm, "N·m"), ("temperature", temperature_c, "°C")):
+        if values is not None:
+            columns[name], units[name] = np.asarray(values, dtype=float), unit
+    return RunLog(columns, units, {"fixture": "calibration rig", **(meta or {})})
 
 
 def _positive_seconds(text: str) -> float:

@@ -16,7 +16,7 @@ from pathlib import Path
 
 import numpy as np
 
-from experiments.common import add_params_arg, load_params_arg, write_json
+from experiments.common import add_params_arg, add_rerun_args, load_params_arg, record_rerun, write_json
 from sim.params import TestbedParams
 from sim.plant import Plant
 from sim.run import run_open_loop
@@ -117,6 +117,7 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--json", type=Path, help="write the results as JSON")
     parser.add_argument("--plot", type=Path, metavar="DIR", help="save a PNG figure in DIR")
     add_params_arg(parser)
+    add_rerun_args(parser)
     args = parser.parse_args(argv)
     if args.duration <= 0:
         parser.error(f"--duration {args.duration}: must be > 0 s")
@@ -128,6 +129,7 @@ def main(argv: list[str] | None = None) -> None:
         print(f"wrote {args.json}")
     if args.plot:
         print(f"figure: {plot_result(result, args.plot)}")
+    record_rerun(args, {f"open-loop step {s.command_nm:g} N·m": g for s, g in zip(result.steps, result.logs)}, params)
 
 
 if __name__ == "__main__":

@@ -21,7 +21,7 @@ from pathlib import Path
 from typing import Any
 
 from experiments.admittance import plot_admittance, run_admittance
-from experiments.common import add_experiment_args, format_rows, load_params_arg, paper_row, write_json
+from experiments.common import add_experiment_args, format_rows, load_params_arg, paper_row, record_rerun, write_json
 from experiments.sinusoid import plot_sinusoid, run_sinusoid
 from experiments.step import plot_step, run_step
 from sim.characterize import measure_breakaway
@@ -54,6 +54,7 @@ class PaperResult:
     behaviours: list[Behaviour]
     figures: list[Path] = field(default_factory=list)
     missing: list[str] = field(default_factory=list)
+    logs: dict[str, Any] = field(default_factory=dict, repr=False)  # run name -> RunLog (rerun recording)
 
     def within_target(self) -> tuple[int, int]:
         """(number of rows within a factor TARGET_RATIO, number of rows with a ratio)."""
@@ -142,7 +143,10 @@ def run_paper(params: TestbedParams | None = None, seed: int = 0, duration_s: fl
     if plot_dir is not None:
         figures += [plot_step(step, plot_dir), plot_sinusoid(sinusoid, plot_dir),
                     plot_admittance(admittance, plot_dir)]
-    return PaperResult(rows, _behaviours(step, sinusoid, admittance, breakaway), figures, missing)
+    logs = {**{f"{c.name}, {c.feedback}": c.log for c in step.cases},
+            **{f"{c.waveform.name}, {c.feedback}": c.log for c in sinusoid.cases},
+            **{p.name: p.log for p in admittance.pushes}}
+    return PaperResult(rows, _behaviours(step, sinusoid, admittance, breakaway), figures, missing, logs)
 
 
 def markdown_report(result: PaperResult, directory: Path) -> str:
@@ -192,6 +196,7 @@ def main(argv: list[str] | None = None) -> None:
         report = args.plot / "paper_report.md"
         report.write_text(markdown_report(result, args.plot))
         print(f"report: {report}")
+    record_rerun(args, result.logs, params)
 
 
 if __name__ == "__main__":

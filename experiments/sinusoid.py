@@ -33,7 +33,7 @@ from controllers.loop import run_torque_loop
 from controllers.pi import PITorqueController
 from controllers.tracking import TrackingError, tracking_error
 from experiments.common import (add_experiment_args, feedback_kinds, format_rows, load_params_arg,
-                                loadcell_torque_nm, paper_row, write_json)
+                                loadcell_torque_nm, paper_row, record_rerun, write_json)
 from sim.params import TestbedParams
 from sim.plant import Plant
 from sim.run import run_open_loop
@@ -202,6 +202,7 @@ def main(argv: list[str] | None = None) -> None:
         print(f"wrote {args.json}")
     if args.plot:
         print(f"figure: {plot_sinusoid(result, args.plot)}")
+    record_rerun(args, {f"{c.waveform.name}, {c.feedback}": c.log for c in result.cases}, params)
 
 
 if __name__ == "__main__":

@@ -37,7 +37,7 @@ from controllers.loop import run_torque_loop
 from controllers.pi import PITorqueController
 from controllers.tracking import TrackingError, tracking_error
 from experiments.common import (add_experiment_args, feedback_kinds, format_rows, load_params_arg,
-                                loadcell_torque_nm, paper_row, write_json)
+                                loadcell_torque_nm, paper_row, record_rerun, write_json)
 from sim.params import TestbedParams
 from sim.plant import Plant
 from sim.runlog import RunLog
@@ -253,6 +253,7 @@ def main(argv: list[str] | None = None) -> None:
         print(f"wrote {args.json}")
     if args.plot:
         print(f"figure: {plot_step(result, args.plot)}")
+    record_rerun(args, {f"{c.name}, {c.feedback}": c.log for c in result.cases}, params)
 
 
 if __name__ == "__main__":

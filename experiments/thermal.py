@@ -19,7 +19,7 @@ from typing import Any
 import numpy as np
 
 from experiments.calibration import comparison_rows, format_rows
-from experiments.common import add_params_arg, load_params_arg, write_json
+from experiments.common import add_params_arg, add_rerun_args, load_params_arg, record_log, record_rerun, write_json
 from sensor.calibration import FS_NM
 from sensor.chamber import TemperatureRecord, chamber_run, drift_run
 from sensor.drift_fit import DriftFit, DriftModelComparison, compare_drift_models
@@ -130,6 +130,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--json", type=Path, metavar="PATH", help="write {rows: [...]} and the drift fits")
     parser.add_argument("--plot", type=Path, metavar="DIR", help="write PNG figures to DIR")
     add_params_arg(parser)
+    add_rerun_args(parser, "the chamber and drift records (voltages, torques, TMP117; no mechanics, no 3D)")
     args = parser.parse_args(argv)
     params = load_params_arg(parser, args)
     print("factory calibration, chamber protocol (140 min simulated), two one-hour tests ...", file=sys.stderr)
@@ -147,6 +148,10 @@ def main(argv: list[str] | None = None) -> int:
         print(f"JSON written to {args.json}")
     for p in result.figures:
         print(f"figure: {p}")
+    records = {"chamber": result.chamber, **{f"drift test {load:g} N·m": r for load, r in result.drift_tests.items()}}
+    record_rerun(args, lambda: {name: record_log(r.time_s, r.voltages_v, tau_sensor_nm=r.tau_sensor_nm,
+                                                 tau_mini85_nm=r.tau_reference_nm, tau_applied_nm=r.tau_applied_nm,
+                                                 temperature_c=r.tmp117_c) for name, r in records.items()}, params)
     return 0
 
 

@@ -1,0 +1,138 @@
+"""Speed of the Gymnasium environment against Gymnasium's InvertedPendulum-v5 in the same process, vectorised
+across two cores, and the cost of recording a run to rerun.
+
+    python -m benchmarks.bench_env [--steps 4000] [--repeats 3] [--record-s 5]
+
+Prints env steps per second of ``torquebed/TorqueTracking-v0`` through ``gymnasium.make`` (its wrappers
+included, like the peer's), with the breakdown of one step (``Plant.step`` alone; plus the sensor readout),
+``AsyncVectorEnv`` and ``SyncVectorEnv`` with 2 environments (total env steps per second), the peer's
+``env.step`` rate, and the slow-down of a closed-loop run (``run_torque_loop``, sensor feedback) by writing
+its rerun recording (``sim.recording.record_logs`` to an .rrd).
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import tempfile
+import time
+from pathlib import Path
+
+import gymnasium as gym
+import numpy as np
+
+import sim  # noqa: F401  (registers the environment)
+from benchmarks.bench_plant import PEER_ENV, best_rate, peer_rate
+from controllers.feedback import make_feedback
+from controllers.loop import run_torque_loop
+from controllers.pi import PITorqueController
+from envs import ENV_ID
+from sensor.readout import factory_calibration
+from sim.params import TestbedParams
+from sim.plant import Plant
+
+ACTION_NM = 0.3  # [N·m] a constant command: the rig loaded, the gear stuck or creeping
+
+
+def env_rate(steps: int, repeats: int) -> float:
+    env = gym.make(ENV_ID)
+    env.reset(seed=0)
+    action = np.full(1, ACTION_NM, np.float32)
+
+    def run() -> None:
+        for _ in range(steps):
+            _, _, terminated, truncated, _ = env.step(action)
+            if terminated or truncated:
+                env.reset()
+
+    return best_rate(run, steps, repeats)
+
+
+def breakdown_rates(steps: int, repeats: int) -> dict[str, float]:
+    p = TestbedParams()
+    plant = Plant(p, "locked")
+    sensor = make_feedback("sensor", p, 0)
+
+    def plant_only() -> None:
+        plant.reset()
+        for _ in range(steps):
+            plant.step(ACTION_NM)
+
+    def with_sensor() -> None:
+        plant.reset()
+        for _ in range(steps):
+            sensor.read(plant)
+            plant.step(ACTION_NM)
+
+    return {"plant": best_rate(plant_only, steps, repeats), "plant+sensor": best_rate(with_sensor, steps, repeats)}
+
+
+def vector_rate(cls, n_envs: int, steps: int, repeats: int, **kwargs) -> float:
+    """Total env steps per second of ``n_envs`` environments in a vector env (autoreset on truncation)."""
+    vec = cls([lambda: gym.make(ENV_ID) for _ in range(n_envs)], **kwargs)
+    try:
+        vec.reset(seed=0)
+        action = np.full((n_envs, 1), ACTION_NM, np.float32)
+        per_env = steps // n_envs
+
+        def run() -> None:
+            for _ in range(per_env):
+                vec.step(action)
+
+        return best_rate(run, per_env * n_envs, repeats)
+    finally:
+        vec.close()
+
+
+def recording_overhead(duration_s: float, repeats: int) -> dict[str, float]:
+    """Wall time of a closed-loop run and of recording its log to an .rrd [s] (best of repeats each)."""
+    from sim.recording import record_logs
+
+    p = TestbedParams()
+    n = round(duration_s / p.simulation.control_period_s)
+    reference = 0.5 * np.sin(2 * np.pi * 0.2 * np.arange(n) * p.simulation.control_period_s)
+    runs, records, log = [], [], None
+    with tempfile.TemporaryDirectory() as tmp:
+        for i in range(repeats):
+            plant = Plant(p, "locked")
+            start = time.perf_counter()
+            log = run_torque_loop(plant, PITorqueController(p.motor.peak_torque_nm), make_feedback("sensor", p, 0),
+                                  reference, meta={})
+            runs.append(time.perf_counter() - start)
+            start = time.perf_counter()
+            record_logs({"sine": log}, p, path=Path(tmp) / f"r{i}.rrd")
+            records.append(time.perf_counter() - start)
+            size = (Path(tmp) / f"r{i}.rrd").stat().st_size
+    return {"run_s": min(runs), "record_s": min(records), "ticks": n, "rrd_bytes": size}
+
+
+def main(argv: list[str] | None = None) -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    parser.add_argument("--steps", type=int, default=4000, help="env steps per measurement (default 4000)")
+    parser.add_argument("--repeats", type=int, default=3)
+    parser.add_argument("--record-s", type=float, default=5.0, help="simulated seconds of the recorded run")
+    args = parser.parse_args(argv)
+    factory_calibration(TestbedParams())  # once, before timing (and inherited by the forked workers)
+    single = env_rate(args.steps, args.repeats)
+    parts = breakdown_rates(args.steps, args.repeats)
+    peer = peer_rate(args.steps, args.repeats)
+    async2 = vector_rate(gym.vector.AsyncVectorEnv, 2, args.steps, args.repeats, context="fork")
+    sync2 = vector_rate(gym.vector.SyncVectorEnv, 2, args.steps, args.repeats)
+    rec = recording_overhead(args.record_s, args.repeats)
+    load = ", ".join(f"{x:.1f}" for x in os.getloadavg())
+    print(f"{ENV_ID}, locked fixture, constant {ACTION_NM} N·m command, best of {args.repeats} "
+          f"({os.cpu_count()} CPUs, load average {load})")
+    print(f"  single env (gymnasium.make)         {single:9.0f} steps/s")
+    print(f"    Plant.step alone                  {parts['plant']:9.0f} ticks/s")
+    print(f"    Plant.step + sensor readout       {parts['plant+sensor']:9.0f} ticks/s")
+    print(f"  AsyncVectorEnv, 2 envs (2 cores)    {async2:9.0f} env steps/s ({async2 / single:.2f}x single)")
+    print(f"  SyncVectorEnv, 2 envs               {sync2:9.0f} env steps/s")
+    print(f"  {PEER_ENV} env.step       {peer:9.0f} steps/s")
+    print(f"  ratio to peer: single {single / peer:.2f}x, async 2 envs {async2 / peer:.2f}x")
+    print(f"rerun recording of a {rec['ticks'] / 1000:g} s closed-loop run (sensor feedback, 50 Hz 3D pose):")
+    print(f"  run {rec['run_s']:.2f} s, recording {rec['record_s']:.3f} s ({rec['rrd_bytes'] / 1e6:.1f} MB): "
+          f"slow-down {rec['record_s'] / rec['run_s']:.1%} (target < 30 %)")
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,243 @@
+"""``torquebed/TorqueTracking-v0``: torque tracking on the simulated GIM8108 testbed, one step per 1 ms control
+tick, the loop the experiments run (:func:`controllers.loop.run_torque_loop`) opened for an agent."""
+
+from __future__ import annotations
+
+from typing import Any
+
+import gymnasium as gym
+import numpy as np
+from gymnasium import spaces
+
+from controllers.feedback import make_feedback
+from controllers.motor_driver import CurrentToTorqueMap
+from envs.randomization import MAX_SCALE, randomize_params
+from envs.references import TASK_CHOICES, TASKS, Reference, make_reference
+from experiments.common import LOADCELL_READING_NOISE_N
+from sensor.readout import factory_calibration
+from sim.params import TestbedParams
+from sim.plant import Plant, SimulationDiverged
+
+FIXTURES = ("locked", "free")
+OBSERVATION_NAMES = ("tau_ref", "tau_sensor", "q_motor", "qd_motor", "tau_current_estimate", "temperature")
+OBSERVATION_UNITS = ("N·m", "N·m", "rad", "rad/s", "N·m", "°C")
+RESET_OPTIONS = ("task", "amplitude_nm", "frequency_hz")
+DEFAULT_EPISODE_S = 2.0  # [s] 2000 ticks: short episodes keep tests and tuning fast
+
+
+class TorqueTrackingEnv(gym.Env):
+    """Track a torque reference at the load cell of the GIM8108 + optical torque sensor testbed.
+
+    ## Description
+    The simulated rig of the paper (MuJoCo 4.0; :class:`sim.plant.Plant`): a SteadyWin GIM8108 geared BLDC
+    motor, torque-commanded through its driver, drives a four-spoke flexure with eight photo-reflectors (the
+    joint torque sensor) and a 0.1 m lever whose tip rests on a load cell ('locked' fixture) or turns freely
+    ('free'). The agent is the torque controller running at the paper's 1 kHz: every step it reads what a real
+    controller reads and commands a motor torque; the goal is that the torque the load cell measures follows
+    a reference (the paper's step, sine and square tasks, or random ones). One step is exactly one tick of the
+    loop the experiments run (:func:`controllers.loop.run_torque_loop`): read the sensors at the end of the
+    previous tick, command, the motor delivers ``CurrentToTorqueMap.delivered_nm(command)`` (the driver's
+    current-to-torque droop), the plant advances one control period (``n_substeps`` physics steps).
+
+    ## Action Space
+    ``Box(-peak, peak, (1,), float32)`` with peak = ``params.motor.peak_torque_nm`` (18 N·m by default).
+
+    | Num | Action | Min | Max | Unit |
+    |-----|--------|-----|-----|------|
+    | 0 | motor torque command, output side | -peak | peak | N·m |
+
+    Actions outside the box are clipped to it (the driver's limit).
+
+    ## Observation Space
+    ``Box(-inf, inf, (6,), float64)``: what the controller of the real rig can read at the start of a tick.
+
+    | Num | Observation | Unit | Source |
+    |-----|-------------|------|--------|
+    | 0 | torque reference of this tick | N·m | the task's profile |
+    | 1 | joint torque sensor reading | N·m | photo-reflector array through its factory calibration (noise, ADC, hysteresis, drift) |
+    | 2 | motor angle, output side | rad | encoder |
+    | 3 | motor velocity, output side | rad/s | driver |
+    | 4 | driver's current-based torque estimate | N·m | N·K_t·i through the inverse current-to-torque map (``controllers.feedback.CurrentFeedback``) |
+    | 5 | sensor board temperature | °C | TMP117 reading |
+
+    The load-cell torque is not observed (it is what the reward grades); it is in ``info``.
+
+    ## Rewards
+    Per step k, with y_k the load-cell torque at the end of the tick (force x lever length, with the load
+    cell's reading noise ``LOADCELL_READING_NOISE_N`` unless ``feedback_noise=False``; in the 'free' fixture,
+    which has no load cell, the true flexure torque), r_k the reference of the tick, u_k the clipped command,
+    s the episode's reward scale (largest |reference|, at least 0.01 N·m) and τ_peak the motor's peak
+    torque::
+
+        reward_k = -((y_k - r_k) / s)**2 - ctrl_cost_weight * (u_k / τ_peak)**2
+
+    So -mean(reward) over an episode is the squared RMS tracking error relative to the reference's size
+    (plus the control cost): ``s * sqrt(-mean(reward))`` is the RMS error in N·m the experiments report
+    when ``ctrl_cost_weight = 0``.
+
+    ## Starting State
+    The rig at rest with the thermal network at its idle steady state at ambient, the backlash taken up on
+    the side of the reference's first non-zero value (as after a previous push, as ``experiments.step``
+    starts), the sensor's noise sequence seeded from the episode's seed. Domain randomisation, when on, draws
+    a new parameter set per episode (:mod:`envs.randomization`). Unlike ``experiments.sinusoid``, the rig is
+    not preconditioned by a previous test.
+
+    ## Episode End
+    Truncation after ``episode_duration_s`` (default 2 s = 2000 steps). Termination only if the physics
+    diverges (:class:`sim.plant.SimulationDiverged`; not expected within the parameters' valid ranges), with
+    ``info["diverged"] = True``.
+
+    ## Arguments
+    ``gymnasium.make("torquebed/TorqueTracking-v0", **kwargs)`` after ``import sim`` (or
+    ``gymnasium.make("sim:torquebed/TorqueTracking-v0")``).
+
+    | Parameter | Type | Default | Description |
+    |-----------|------|---------|-------------|
+    | ``task`` | str | ``"any"`` | reference profile: ``"step"``, ``"sine"``, ``"square"``, ``"random"`` or ``"any"`` (one drawn per episode) |
+    | ``episode_duration_s`` | float | 2.0 | episode length [s] (whole control ticks) |
+    | ``fixture`` | str | ``"locked"`` | ``"locked"``: lever on the load cell; ``"free"``: lever turns freely |
+    | ``feedback_noise`` | bool | True | sensor channel noise and load-cell reading noise on / off |
+    | ``domain_randomization`` | bool | False | draw plant and sensor parameters per episode (:mod:`envs.randomization`) |
+    | ``randomization_scale`` | float | 0.2 | relative spread s of the randomisation, in [0, 0.5] |
+    | ``ctrl_cost_weight`` | float | 0.0 | weight of the control cost in the reward |
+    | ``params`` | TestbedParams | defaults | nominal parameter set |
+
+    ``reset(options=...)`` takes ``task`` (as above but not ``"any"``), ``amplitude_nm`` [N·m] (step size or
+    amplitude, != 0, |.| <= peak torque) and ``frequency_hz`` [Hz] (> 0, sine and square only) for that
+    episode.
+
+    ## Version History
+    * v0: initial version (torquebed issue 5).
+    """
+
+    metadata = {"render_modes": [], "render_fps": 1000}
+
+    def __init__(self, task: str = "any", episode_duration_s: float = DEFAULT_EPISODE_S, fixture: str = "locked",
+                 feedback_noise: bool = True, domain_randomization: bool = False,
+                 randomization_scale: float = 0.2, ctrl_cost_weight: float = 0.0,
+                 params: TestbedParams | None = None, render_mode: str | None = None) -> None:
+        if task not in TASK_CHOICES:
+            raise ValueError(f"task = {task!r}: valid values are {', '.join(TASK_CHOICES)}")
+        if fixture not in FIXTURES:
+            raise ValueError(f"fixture = {fixture!r}: valid values are {', '.join(FIXTURES)}")
+        if not (0.0 <= randomization_scale <= MAX_SCALE):
+            raise ValueError(f"randomization_scale = {randomization_scale!r}: valid range [0, {MAX_SCALE}]")
+        if not (np.isfinite(ctrl_cost_weight) and ctrl_cost_weight >= 0.0):
+            raise ValueError(f"ctrl_cost_weight = {ctrl_cost_weight!r}: valid range [0, inf)")
+        if render_mode is not None:
+            raise ValueError(f"render_mode = {render_mode!r}: this environment does not render (valid: None); "
+                             "record a run with sim.recording instead")
+        self.nominal_params = params or TestbedParams()
+        self.dt = self.nominal_params.simulation.control_period_s
+        self.n_steps = round(episode_duration_s / self.dt)
+        if not np.isfinite(episode_duration_s) or self.n_steps < 1:
+            raise ValueError(f"episode_duration_s = {episode_duration_s!r}: valid range [{self.dt:g}, inf) s")
+        self.task, self.fixture = task, fixture
+        self.feedback_noise, self.domain_randomization = bool(feedback_noise), bool(domain_randomization)
+        self.randomization_scale, self.ctrl_cost_weight = float(randomization_scale), float(ctrl_cost_weight)
+        self.render_mode = None
+        peak = self.nominal_params.motor.peak_torque_nm
+        self.action_space = spaces.Box(-peak, peak, (1,), np.float32)
+        self.observation_space = spaces.Box(-np.inf, np.inf, (len(OBSERVATION_NAMES),), np.float64)
+        # The nominal unit's factory calibration (cached per process; ~5 s the first time).
+        self._calibration = factory_calibration(self.nominal_params)
+        self.params = self.nominal_params
+        self.plant = Plant(self.params, fixture)
+        self._obs = np.zeros(len(OBSERVATION_NAMES))
+        self.reference: Reference | None = None
+        self._k = 0
+
+    # ------------------------------------------------------------------ gymnasium API
+    def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None):
+        super().reset(seed=seed)
+        opts = self._check_options(options)
+        rng = self.np_random
+        if self.domain_randomization:
+            self.params = randomize_params(self.nominal_params, rng, self.randomization_scale)
+            self.plant = Plant(self.params, self.fixture)
+        task = opts.get("task", self.task)
+        if task == "any":
+            task = TASKS[int(rng.integers(len(TASKS)))]
+        self.reference = make_reference(task, self.n_steps, self.dt, rng, opts.get("amplitude_nm"),
+                                        opts.get("frequency_hz"))
+        sensor_params = self.params if self.feedback_noise else self.params.replace(
+            photoreflector={"noise_min_v": 0.0, "noise_max_v": 0.0})
+        self._sensor = make_feedback("sensor", sensor_params, int(rng.integers(2**31)), self._calibration)
+        self._current = make_feedback("current", self.params)
+        self._loadcell_rng = np.random.default_rng(int(rng.integers(2**63)))
+        self._loadcell_noise_nm = LOADCELL_READING_NOISE_N * self.params.lever.length_m if self.feedback_noise else 0.0
+        self._delivered = CurrentToTorqueMap.from_params(self.params).delivered_nm
+        self._peak = self.params.motor.peak_torque_nm
+        self._scale = self.reference.scale_nm
+        self.plant.reset(backlash_side=self.reference.first_sign)
+        self._k = 0
+        self._observe()
+        return self._obs.copy(), {"task": task, "amplitude_nm": self.reference.amplitude_nm,
+                                  "frequency_hz": self.reference.frequency_hz, "reward_scale_nm": self._scale}
+
+    def step(self, action):
+        if self.reference is None:
+            raise RuntimeError("call reset() before step()")
+        command = min(max(float(np.asarray(action, dtype=float).reshape(-1)[0]), -self._peak), self._peak)
+        ref = self.reference.values_nm[self._k]
+        plant = self.plant
+        try:
+            plant.step(self._delivered(command))
+        except SimulationDiverged as exc:
+            return self._obs.copy(), 0.0, True, False, {"diverged": True, "message": str(exc)}
+        self._k += 1
+        if self.fixture == "locked":
+            output = plant.loadcell_torque_nm
+            if self._loadcell_noise_nm:
+                output += self._loadcell_rng.normal(0.0, self._loadcell_noise_nm)
+        else:
+            output = plant.flexure_torque_nm
+        error = output - ref
+        u = command / self._peak
+        reward = -(error / self._scale) ** 2 - self.ctrl_cost_weight * u * u
+        truncated = self._k >= self.n_steps
+        self._observe()
+        info = {"loadcell_torque_nm": output, "reference_nm": ref, "tracking_error_nm": error,
+                "command_nm": command, "time_s": plant.time_s, "diverged": False}
+        return self._obs.copy(), float(reward), False, truncated, info
+
+    # ------------------------------------------------------------------ helpers
+    def _observe(self) -> None:
+        plant, obs = self.plant, self._obs
+        obs[0] = self.reference.values_nm[min(self._k, self.n_steps - 1)]  # last one held at the end
+        obs[1] = self._sensor.read(plant)
+        obs[2] = plant.motor_angle_rad
+        obs[3] = plant.motor_velocity_rad_s
+        obs[4] = self._current.read(plant)
+        obs[5] = plant.tmp117_temperature_c
+
+    @property
+    def channel_voltages_v(self) -> np.ndarray:
+        """The eight photo-reflector voltages [V] of the last observation."""
+        return np.array(self._sensor.voltages_v)
+
+    def _check_options(self, options: dict[str, Any] | None) -> dict[str, Any]:
+        if options is None:
+            return {}
+        if not isinstance(options, dict):
+            raise ValueError(f"options must be a dict with keys among {', '.join(RESET_OPTIONS)}, got {options!r}")
+        for key in options:
+            if key not in RESET_OPTIONS:
+                raise ValueError(f"reset option {key!r} is unknown: valid options are {', '.join(RESET_OPTIONS)}")
+        opts = dict(options)
+        if "task" in opts and opts["task"] not in TASKS:
+            raise ValueError(f"reset option task = {opts['task']!r}: valid values are {', '.join(TASKS)}")
+        peak = self.nominal_params.motor.peak_torque_nm
+        if "amplitude_nm" in opts:
+            a = opts["amplitude_nm"]
+            if not (isinstance(a, (int, float)) and np.isfinite(a) and 0 < abs(a) <= peak):
+                raise ValueError(f"reset option amplitude_nm = {a!r}: valid range 0 < |amplitude_nm| <= {peak:g} "
+                                 "N·m (the motor's peak torque)")
+            opts["amplitude_nm"] = float(a)
+        if "frequency_hz" in opts:
+            f = opts["frequency_hz"]
+            nyquist = 0.5 / self.dt
+            if not (isinstance(f, (int, float)) and np.isfinite(f) and 0 < f < nyquist):
+                raise ValueError(f"reset option frequency_hz = {f!r}: valid range (0, {nyquist:g}) Hz")
+            opts["frequency_hz"] = float(f)
+        return opts

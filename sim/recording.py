@@ -1,0 +1,241 @@
+"""Record finished runs (:class:`sim.runlog.RunLog`) to rerun: the testbed in 3D and the time series, with a
+blueprint that lays them out.
+
+Every run is recorded under ``/<run>/`` (a slug of its name; see :func:`entity_name`):
+
+=================================  ===========================================================  ==========
+entity                             what                                                         samples
+=================================  ===========================================================  ==========
+``/<run>/testbed/motor``           GIM8108 housing (static cylinder from the MJCF)              static
+``/<run>/testbed/hub``             gear output flange + sensor hub, turns with q_motor + backlash  decimated
+``/<run>/testbed/flexure``         flexure ring + lever + lever tip, turns with the lever angle q  decimated
+``/<run>/testbed/loadcell``        load cell at the lever tip (locked fixture only)             static
+``/<run>/testbed/torque``          arrow at the lever tip: load-cell force (10 mm per N·m of     decimated
+                                   torque), red when pushing positive, blue negative
+``/<run>/torque/<signal>``         reference, sensor, feedback, loadcell, command, flexure [N·m]  every tick
+                                   (rig records: mini85, applied, sensor)
+``/<run>/voltages/v1`` ... ``v8``  photo-reflector channel voltages [V] (sensor-feedback runs)  every tick
+``/<run>/temperature/board``       TMP117 board temperature [°C]                                every tick
+=================================  ===========================================================  ==========
+
+on the timeline ``time`` (the run's simulated time). The geometry (sizes, positions, colours) is read from the
+compiled :class:`mujoco.MjModel` of the run's parameters and fixture; the 3D pose is sent at
+``pose_rate_hz`` (default 50 Hz, every 20th tick of a 1 kHz run) to keep recording cheap, the time series
+at every tick, all in bulk with ``rerun.send_columns``. Angles are drawn to scale unless
+``angle_exaggeration`` > 1: in the locked fixture the lever turns micro-radians, so the arrow carries the
+load.
+"""
+
+from __future__ import annotations
+
+import math
+import re
+from dataclasses import dataclass
+from pathlib import Path
+
+import mujoco
+import numpy as np
+import rerun as rr
+import rerun.blueprint as rrb
+
+from models.gim8108_testbed.build import build_model
+from sim.params import TestbedParams
+from sim.runlog import RunLog
+
+DEFAULT_POSE_RATE_HZ = 50.0  # [Hz] rate of the 3D pose and arrow samples
+ARROW_M_PER_NM = 0.01  # [m] arrow length per N·m of load-cell torque
+TIMELINE = "time"
+# body of the MJCF -> entity under /<run>/testbed
+BODY_ENTITIES = {"stator": "motor", "output": "hub", "lever": "flexure", "loadcell": "loadcell"}
+TORQUE_SIGNALS = (("reference", "tau_ref"), ("sensor", "tau_sensor"), ("feedback", "tau_feedback"),
+                  ("command", "tau_cmd"), ("flexure", "tau_flexure"),
+                  ("mini85", "tau_mini85"), ("applied", "tau_applied"))  # the calibration rig's records
+
+
+@dataclass(frozen=True)
+class RecordingSummary:
+    """What was recorded.
+
+    Attributes
+    ----------
+    path : Path or None
+        The .rrd file written (None when only spawned).
+    runs : dict of str to int
+        Entity name of each run -> its number of time-series samples.
+    pose_samples : dict of str to int
+        Entity name of each run -> number of 3D pose samples.
+    """
+
+    path: Path | None
+    runs: dict[str, int]
+    pose_samples: dict[str, int]
+
+
+def entity_name(name: str) -> str:
+    """A run name as one entity-path part: runs of characters other than letters, digits, '.', '-' and '_'
+    become '_' ('step 0.05 N·m, sensor' -> 'step_0.05_N_m_sensor')."""
+    slug = re.sub(r"[^A-Za-z0-9._-]+", "_", name).strip("_")
+    return slug or "run"
+
+
+def _z_quaternions(angles_rad: np.ndarray) -> np.ndarray:
+    """Quaternions (x, y, z, w) of rotations by the angles about the joint axis z."""
+    half = 0.5 * np.asarray(angles_rad, dtype=float)
+    return np.column_stack([np.zeros_like(half), np.zeros_like(half), np.sin(half), np.cos(half)])
+
+
+def _log_geometry(rec: rr.RecordingStream, root: str, params: TestbedParams, fixture: str) -> None:
+    """The visual geoms of each body, static, at the pose of zero joint angles (the body frames)."""
+    model = build_model(params, fixture)
+    data = mujoco.MjData(model)
+    mujoco.mj_forward(model, data)
+    for body, entity in BODY_ENTITIES.items():
+        body_id = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_BODY, body)
+        if body_id < 0:
+            continue  # no load cell in the free fixture
+        cylinders, boxes = [], []
+        for g in np.flatnonzero(model.geom_bodyid == body_id):
+            center, size = data.geom_xpos[g].copy(), model.geom_size[g]
+            colour = (np.clip(model.geom_rgba[g], 0.0, 1.0) * 255).astype(np.uint8)
+            if model.geom_type[g] == mujoco.mjtGeom.mjGEOM_CYLINDER:
+                cylinders.append((center, size[0], 2.0 * size[1], colour))
+            elif model.geom_type[g] == mujoco.mjtGeom.mjGEOM_BOX:
+                boxes.append((center, size[:3].copy(), colour))
+        path = f"{root}/testbed/{entity}"
+        if cylinders:
+            centers, radii, lengths, colours = zip(*cylinders, strict=True)
+            rec.log(f"{path}/cylinders", rr.Cylinders3D(centers=centers, radii=radii, lengths=lengths, colors=colours),
+                    static=True)
+        if boxes:
+            rec.log(f"{path}/boxes", rr.Boxes3D(centers=[b[0] for b in boxes], half_sizes=[b[1] for b in boxes],
+                                                colors=[b[2] for b in boxes]), static=True)
+
+
+def _send_scalar(rec: rr.RecordingStream, path: str, times: rr.TimeColumn, values: np.ndarray, name: str) -> None:
+    rec.log(path, rr.SeriesLines(names=name), static=True)
+    rec.send_columns(path, indexes=[times], columns=rr.Scalars.columns(scalars=np.asarray(values, dtype=float)))
+
+
+def record_run(rec: rr.RecordingStream, name: str, log: RunLog, params: TestbedParams | None = None, *,
+               pose_rate_hz: float = DEFAULT_POSE_RATE_HZ, angle_exaggeration: float = 1.0) -> tuple[int, int]:
+    """Send one run log to ``rec`` under ``/<entity_name(name)>``; returns (time-series samples, pose samples).
+
+    Parameters
+    ----------
+    rec : rerun.RecordingStream
+    name : str
+        The run's name (shown in the blueprint).
+    log : RunLog
+        A run with ``time`` and the plant's signals (``q``, ``q_motor``, ``backlash_angle``,
+        ``force_loadcell``, ...); columns it lacks are not recorded.
+    params : TestbedParams, optional
+        The run's parameters (geometry); defaults if None.
+    pose_rate_hz : float
+        Rate of the 3D pose and arrow samples [Hz] (> 0).
+    angle_exaggeration : float
+        Factor on the drawn angles (>= 1; 1 = to scale).
+    """
+    if not (math.isfinite(pose_rate_hz) and pose_rate_hz > 0):
+        raise ValueError(f"pose_rate_hz = {pose_rate_hz!r}: valid range (0, inf) Hz")
+    if not (math.isfinite(angle_exaggeration) and angle_exaggeration >= 1.0):
+        raise ValueError(f"angle_exaggeration = {angle_exaggeration!r}: valid range [1, inf)")
+    params = params or TestbedParams()
+    root = "/" + entity_name(name)
+    fixture = log.meta.get("fixture", "locked")
+    cols = log.columns
+    t = np.asarray(cols["time"], dtype=float)
+    n = len(t)
+    times = rr.TimeColumn(TIMELINE, duration=t)
+    lever_m = log.meta.get("lever_length_m", params.lever.length_m)
+    loadcell_nm = np.asarray(cols["force_loadcell"]) * lever_m if "force_loadcell" in cols else None
+    for label, column in TORQUE_SIGNALS:
+        if column in cols:
+            _send_scalar(rec, f"{root}/torque/{label}", times, cols[column], f"{label} [N·m]")
+    if loadcell_nm is not None and fixture == "locked":
+        _send_scalar(rec, f"{root}/torque/loadcell", times, loadcell_nm, "load cell [N·m]")
+    for k in range(1, 9):
+        if f"v{k}" in cols:
+            _send_scalar(rec, f"{root}/voltages/v{k}", times, cols[f"v{k}"], f"v{k} [V]")
+    if "temperature" in cols:
+        _send_scalar(rec, f"{root}/temperature/board", times, cols["temperature"], "board (TMP117) [°C]")
+
+    if fixture not in ("locked", "free") or "q" not in cols:
+        return n, 0  # a record without mechanics (calibration rig, chamber): no 3D testbed
+    _log_geometry(rec, root, params, fixture)
+    dt = float(np.median(np.diff(t))) if n > 1 else params.simulation.control_period_s
+    every = max(1, round(1.0 / (pose_rate_hz * dt)))
+    idx = np.arange(0, n, every)
+    pose_times = rr.TimeColumn(TIMELINE, duration=t[idx])
+    lever = angle_exaggeration * np.asarray(cols["q"])[idx]
+    hub = np.asarray(cols["q_motor"])[idx] if "q_motor" in cols else np.zeros(len(idx))
+    if "backlash_angle" in cols:
+        hub = hub + np.asarray(cols["backlash_angle"])[idx]
+    for entity, angle in (("hub", angle_exaggeration * hub), ("flexure", lever)):
+        rec.send_columns(f"{root}/testbed/{entity}", indexes=[pose_times],
+                         columns=rr.Transform3D.columns(quaternion=_z_quaternions(angle)))
+    if loadcell_nm is not None and fixture == "locked":
+        tau = loadcell_nm[idx]
+        tip = np.column_stack([lever_m * np.cos(lever), lever_m * np.sin(lever), np.full(len(idx), 0.01)])
+        normal = np.column_stack([-np.sin(lever), np.cos(lever), np.zeros(len(idx))])
+        colours = np.where((tau >= 0)[:, None], [[220, 50, 40, 255]], [[40, 90, 220, 255]]).astype(np.uint8)
+        rec.send_columns(f"{root}/testbed/torque", indexes=[pose_times],
+                         columns=rr.Arrows3D.columns(origins=tip, vectors=normal * (ARROW_M_PER_NM * tau)[:, None],
+                                                     colors=colours))
+    return n, len(idx)
+
+
+def blueprint(names: list[str]) -> rrb.Blueprint:
+    """One tab per run: the 3D testbed on the left, torques, voltages and temperature stacked on the right."""
+    tabs = []
+    for name in names:
+        root = "/" + entity_name(name)
+        tabs.append(rrb.Horizontal(
+            rrb.Spatial3DView(origin=f"{root}/testbed", name="testbed"),
+            rrb.Vertical(rrb.TimeSeriesView(origin=f"{root}/torque", name="torque [N·m]"),
+                         rrb.TimeSeriesView(origin=f"{root}/voltages", name="channel voltages [V]"),
+                         rrb.TimeSeriesView(origin=f"{root}/temperature", name="temperature [°C]"),
+                         row_shares=[3, 2, 1]),
+            column_shares=[2, 3], name=name))
+    return rrb.Blueprint(rrb.Tabs(*tabs) if len(tabs) > 1 else tabs[0], collapse_panels=False)
+
+
+def record_logs(logs: dict[str, RunLog], params: TestbedParams | None = None, *, path: str | Path | None = None,
+                spawn: bool = False, application_id: str = "torquebed", **kwargs) -> RecordingSummary:
+    """Record runs to an .rrd file (``path``) and/or a spawned viewer (``spawn``).
+
+    Parameters
+    ----------
+    logs : dict of str to RunLog
+        Run name -> its log (names become entity paths: give distinct names).
+    params : TestbedParams, optional
+        The runs' parameter set (geometry).
+    path : str or Path, optional
+        Write the recording here (parent folders created).
+    spawn : bool
+        Start the rerun viewer and stream to it.
+    **kwargs
+        ``pose_rate_hz`` and ``angle_exaggeration`` of :func:`record_run`.
+    """
+    if path is None and not spawn:
+        raise ValueError("record_logs needs path (an .rrd file) or spawn=True")
+    names = list(logs)
+    slugs = [entity_name(n) for n in names]
+    if len(set(slugs)) != len(slugs):
+        raise ValueError(f"run names must differ as entity paths: {slugs}")
+    rec = rr.RecordingStream(application_id, recording_id=f"{application_id}-{'-'.join(slugs)}"[:200])
+    bp = blueprint(names)
+    sinks = []
+    if path is not None:
+        path = Path(path)
+        path.parent.mkdir(parents=True, exist_ok=True)
+        sinks.append(rr.FileSink(str(path)))
+    if spawn:
+        rr.spawn(connect=False)
+        sinks.append(rr.GrpcSink())
+    rec.set_sinks(*sinks, default_blueprint=bp)
+    runs, poses = {}, {}
+    for name, slug in zip(names, slugs, strict=True):
+        runs[slug], poses[slug] = record_run(rec, name, logs[name], params, **kwargs)
+    rec.flush()
+    rec.disconnect()
+    return RecordingSummary(path, runs, poses)

@@ -1,0 +1,239 @@
+"""The Gymnasium environment torquebed/TorqueTracking-v0: API contract, determinism, options, randomisation,
+vectorisation, and that one step is one tick of the experiments' loop."""
+
+import dataclasses
+import tomllib
+from pathlib import Path
+
+import gymnasium as gym
+import numpy as np
+import pytest
+from gymnasium.utils.env_checker import check_env
+
+import sim  # noqa: F401  (registers the environment)
+from controllers.feedback import make_feedback
+from controllers.loop import run_torque_loop
+from controllers.pi import PITorqueController
+from envs import ENV_ID, register_envs
+from envs.randomization import RANDOMIZED_FIELDS, field_range
+from envs.torque_tracking import OBSERVATION_NAMES, TorqueTrackingEnv
+from sensor.readout import factory_calibration
+from sim.params import TestbedParams
+from sim.plant import Plant
+
+ROOT = Path(__file__).resolve().parents[1]
+SHORT_S = 0.05  # [s] 50-step episodes
+
+
+def make(**kwargs) -> TorqueTrackingEnv:
+    return TorqueTrackingEnv(episode_duration_s=kwargs.pop("episode_duration_s", SHORT_S), **kwargs)
+
+
+def rollout(env, seed, actions, options=None):
+    obs, _ = env.reset(seed=seed, options=options)
+    out = [obs]
+    rewards = []
+    for a in actions:
+        obs, r, term, trunc, _ = env.step(np.array([a], np.float32))
+        out.append(obs)
+        rewards.append(r)
+        if term or trunc:
+            break
+    return np.array(out), np.array(rewards)
+
+
+def test_check_env_passes():
+    """Gymnasium's own checker accepts the environment (spaces, seeding, reset/step contract)."""
+    check_env(make(), skip_render_check=True)
+
+
+def test_make_by_id_after_import_of_sim_and_registration_is_idempotent():
+    """gymnasium.make works with the registered id; registering twice does not raise."""
+    register_envs()
+    env = gym.make(ENV_ID, episode_duration_s=SHORT_S)
+    obs, _ = env.reset(seed=0)
+    assert obs.shape == (len(OBSERVATION_NAMES),)
+    assert isinstance(env.unwrapped, TorqueTrackingEnv)
+
+
+def test_gymnasium_entry_point_in_pyproject_registers():
+    """The gymnasium.envs entry point names a function that registers the id."""
+    project = tomllib.loads((ROOT / "pyproject.toml").read_text())
+    target = project["project"]["entry-points"]["gymnasium.envs"]["torquebed"]
+    module, attr = target.split(":")
+    assert (module, attr) == ("envs", "register_envs")
+    assert ENV_ID in gym.registry
+
+
+def test_same_seed_same_episode_and_another_seed_differs():
+    """Observations and rewards repeat exactly for a seed (noise, task draw); another seed changes them."""
+    actions = np.linspace(0.0, 0.3, 40)
+    a_obs, a_rew = rollout(make(), 7, actions)
+    b_obs, b_rew = rollout(make(), 7, actions)
+    c_obs, _ = rollout(make(), 8, actions)
+    np.testing.assert_array_equal(a_obs, b_obs)
+    np.testing.assert_array_equal(a_rew, b_rew)
+    assert not np.array_equal(a_obs, c_obs)
+
+
+def test_episode_truncates_after_its_duration():
+    """episode_duration_s = 0.05 s gives 50 steps, the last one truncated, none terminated."""
+    env = make()
+    env.reset(seed=0)
+    flags = [env.step(np.zeros(1, np.float32))[2:4] for _ in range(50)]
+    assert flags[-1] == (False, True)
+    assert not any(t or u for t, u in flags[:-1])
+
+
+def test_reset_options_set_task_amplitude_and_frequency():
+    """options task/amplitude_nm/frequency_hz define the episode's reference."""
+    env = make(episode_duration_s=1.0)
+    _, info = env.reset(seed=0, options={"task": "sine", "amplitude_nm": 2.0, "frequency_hz": 1.0})
+    assert info["task"] == "sine"
+    ref = env.reference.values_nm
+    t = np.arange(len(ref)) * 1e-3
+    np.testing.assert_allclose(ref, 2.0 * np.sin(2 * np.pi * t))
+    _, info = env.reset(seed=0, options={"task": "step", "amplitude_nm": 0.2})
+    assert env.reference.values_nm[0] == 0.0 and env.reference.values_nm[-1] == 0.2
+    _, info = env.reset(seed=0, options={"task": "square"})
+    assert set(np.unique(env.reference.values_nm)) == {-0.1, 0.1}  # the paper's 0.1 N·m square wave
+    _, info = env.reset(seed=0, options={"task": "random"})
+    assert 0.0 < np.abs(env.reference.values_nm).max() <= 10.0
+
+
+@pytest.mark.parametrize("options,names", [
+    ({"tasks": "step"}, ["tasks", "task", "amplitude_nm", "frequency_hz"]),
+    ({"task": "ramp"}, ["task", "step", "sine", "square", "random"]),
+    ({"amplitude_nm": 50.0}, ["amplitude_nm", "18"]),
+    ({"amplitude_nm": 0.0}, ["amplitude_nm"]),
+    ({"frequency_hz": -1.0}, ["frequency_hz", "500"]),
+])
+def test_bad_reset_options_raise_naming_the_option_and_valid_values(options, names):
+    """A bad option is refused with its name and the valid keys / values / range."""
+    with pytest.raises(ValueError) as exc:
+        make().reset(seed=0, options=options)
+    for name in names:
+        assert name in str(exc.value)
+
+
+@pytest.mark.parametrize("kwargs,names", [
+    ({"task": "ramp"}, ["task", "any"]), ({"fixture": "clamped"}, ["fixture", "locked", "free"]),
+    ({"randomization_scale": 0.9}, ["randomization_scale", "0.5"]),
+    ({"episode_duration_s": 0.0}, ["episode_duration_s"]), ({"ctrl_cost_weight": -1.0}, ["ctrl_cost_weight"]),
+])
+def test_bad_constructor_arguments_raise_naming_the_argument(kwargs, names):
+    """A bad argument is refused with its name and the valid values."""
+    with pytest.raises(ValueError) as exc:
+        make(**kwargs)
+    for name in names:
+        assert name in str(exc.value)
+
+
+def test_action_is_clipped_to_the_motor_peak_torque():
+    """A command beyond ±peak torque is applied as ±peak; the action space is that box."""
+    env = make()
+    peak = TestbedParams().motor.peak_torque_nm
+    assert env.action_space.low[0] == -peak and env.action_space.high[0] == peak
+    env.reset(seed=0)
+    assert env.step(np.array([1e3], np.float32))[4]["command_nm"] == peak
+    assert env.plant.torque_command_nm == pytest.approx(peak * (1 - TestbedParams().motor.torque_saturation_per_nm
+                                                                 * peak))  # delivered through the driver's map
+
+
+def test_reward_is_the_normalised_squared_load_cell_error_plus_control_cost():
+    """Without noise, reward = -((τ_loadcell - τ_ref)/s)² - w (u/τ_peak)² with τ_loadcell read from the plant."""
+    w = 0.5
+    env = make(feedback_noise=False, ctrl_cost_weight=w)
+    env.reset(seed=0, options={"task": "sine", "amplitude_nm": 0.5, "frequency_hz": 5.0})
+    for k, u in enumerate((0.0, 0.4, 0.8, -0.3)):
+        ref = env.reference.values_nm[k]
+        _, reward, *_ = env.step(np.array([u], np.float32))
+        error = env.plant.loadcell_torque_nm - ref
+        scale = np.abs(env.reference.values_nm).max()  # the episode's largest |reference|
+        assert env.reference.scale_nm == scale
+        expected = -(error / scale) ** 2 - w * (float(np.float32(u)) / 18.0) ** 2
+        assert reward == pytest.approx(expected, rel=1e-12, abs=1e-15)
+
+
+def test_reward_is_zero_at_rest_on_a_zero_reference_without_noise():
+    """The rig at rest, the reference zero (before the step), no command: load cell 0, reward 0."""
+    env = make(feedback_noise=False)
+    env.reset(seed=0, options={"task": "step", "amplitude_nm": 0.1})
+    _, reward, *_ = env.step(np.zeros(1, np.float32))
+    assert reward == pytest.approx(0.0, abs=1e-12)
+
+
+def test_one_step_is_one_tick_of_the_experiments_torque_loop():
+    """A PI on the env's sensor observation reproduces run_torque_loop's load-cell torque exactly (noise off)."""
+    env = make(feedback_noise=False, episode_duration_s=0.3)
+    obs, _ = env.reset(seed=0, options={"task": "step", "amplitude_nm": 0.1})
+    pi = PITorqueController(output_limit_nm=18.0)
+    loadcell = []
+    for _ in range(env.n_steps):
+        obs, _, _, _, info = env.step(np.array([pi.step(obs[0], obs[1])]))
+        loadcell.append(info["loadcell_torque_nm"])
+    p = TestbedParams()
+    plant = Plant(p, "locked")
+    plant.reset(backlash_side=1)
+    feedback = make_feedback("sensor", p.replace(photoreflector={"noise_min_v": 0.0, "noise_max_v": 0.0}), 0,
+                             factory_calibration(p))
+    log = run_torque_loop(plant, PITorqueController(output_limit_nm=18.0), feedback, env.reference.values_nm,
+                          meta={})
+    # same trajectory; only the last bit of force x length vs the torque differs
+    np.testing.assert_allclose(np.array(loadcell), log["force_loadcell"] * p.lever.length_m, rtol=1e-12, atol=1e-15)
+    assert np.abs(log["force_loadcell"]).max() * p.lever.length_m > 0.05  # the step was followed
+
+
+def test_domain_randomization_stays_in_range_repeats_for_a_seed_and_differs_between_seeds():
+    """Every randomised field is within its valid range and within ±scale of nominal; same seed, same set."""
+    env = make(domain_randomization=True, randomization_scale=0.2)
+    nominal = TestbedParams()
+    drawn = []
+    for seed in (0, 1, 0):
+        env.reset(seed=seed)
+        drawn.append(env.params)
+        for group, name in RANDOMIZED_FIELDS:
+            value, base = getattr(getattr(env.params, group), name), getattr(getattr(nominal, group), name)
+            low, high = field_range(env.params, group, name)
+            assert low <= value <= high
+            assert abs(value - base) <= 0.2 * abs(base) * (1 + 1e-12)
+        assert env.params.friction.coulomb_torque_nm <= env.params.friction.breakaway_torque_nm
+        assert env.plant.params is env.params
+    assert drawn[0] == drawn[2] and drawn[0] != drawn[1]
+    changed = [(g, n) for g, n in RANDOMIZED_FIELDS
+               if getattr(getattr(drawn[0], g), n) != getattr(getattr(nominal, g), n)]
+    assert len(changed) == len(RANDOMIZED_FIELDS)
+    assert dataclasses.replace(drawn[0]) == drawn[0]
+
+
+def test_free_fixture_runs_and_tracks_the_flexure_torque():
+    """In the free fixture the graded output is the flexure torque (no load cell)."""
+    env = make(fixture="free", feedback_noise=False)
+    env.reset(seed=0, options={"task": "step", "amplitude_nm": 0.1})
+    for _ in range(20):
+        _, _, _, _, info = env.step(np.array([0.5], np.float32))
+    assert info["loadcell_torque_nm"] == env.plant.flexure_torque_nm
+
+
+def _vector_obs(vec_cls, **kwargs):
+    vec = vec_cls([lambda: make() for _ in range(2)], **kwargs)
+    try:
+        obs, _ = vec.reset(seed=[3, 4])
+        assert obs.shape == (2, len(OBSERVATION_NAMES))
+        trace = [obs]
+        for _ in range(5):
+            obs, rew, term, trunc, _ = vec.step(np.full((2, 1), 0.2, np.float32))
+            assert rew.shape == (2,) and not term.any() and not trunc.any()
+            trace.append(obs)
+        return np.array(trace)
+    finally:
+        vec.close()
+
+
+def test_sync_and_async_vector_envs_step_and_agree():
+    """SyncVectorEnv and AsyncVectorEnv (2 processes) give the same observations for the same seeds."""
+    factory_calibration(TestbedParams())  # cached here, inherited by the forked workers
+    sync = _vector_obs(gym.vector.SyncVectorEnv)
+    async_ = _vector_obs(gym.vector.AsyncVectorEnv, context="fork")
+    np.testing.assert_array_equal(sync, async_)
+    assert not np.array_equal(sync[:, 0], sync[:, 1])  # the two seeds differ

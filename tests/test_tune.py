@@ -1,0 +1,52 @@
+"""experiments.tune: the tuned gains are never worse than the paper's on any task, the run is deterministic,
+and the command line's short mode writes what it promises."""
+
+import json
+
+import pytest
+
+from experiments.tune import PAPER_GAINS, TUNE_TASKS, Gains, main, run_episode, tune
+from envs.torque_tracking import TorqueTrackingEnv
+
+
+def test_tuned_gains_are_no_worse_than_the_papers_on_every_task_and_repeat():
+    """Short mode: every task's RMS error under the tuned gains <= the paper's; same call, same gains."""
+    a = tune(duration_s=0.2, max_evaluations=6)
+    assert len(a.tuned_rms_nm) == len(TUNE_TASKS)
+    for tuned, paper in zip(a.tuned_rms_nm, a.paper_rms_nm, strict=True):
+        assert 0.0 < tuned <= paper
+    assert a.objective == max(q / p for q, p in zip(a.tuned_rms_nm, a.paper_rms_nm, strict=True))
+    assert a.evaluations <= 6
+    b = tune(duration_s=0.2, max_evaluations=6)
+    assert (a.tuned, a.tuned_rms_nm) == (b.tuned, b.tuned_rms_nm)
+
+
+def test_episode_rms_is_the_load_cell_error_the_env_reports():
+    """run_episode's RMS equals the RMS of the env's tracking errors from the reference's first move on."""
+    env = TorqueTrackingEnv(episode_duration_s=0.2)
+    ep = run_episode(env, PAPER_GAINS, TUNE_TASKS[0], seed=3)
+    start = next(k for k, r in enumerate(ep.reference_nm) if r != 0.0)
+    e = ep.output_nm[start:] - ep.reference_nm[start:]
+    assert ep.rms_nm == pytest.approx(float((e ** 2).mean() ** 0.5), rel=1e-12)
+    worse = run_episode(env, Gains(PAPER_GAINS.kp, 0.1), TUNE_TASKS[0], seed=3)  # almost no integral action
+    assert worse.rms_nm > ep.rms_nm
+
+
+def test_tune_rejects_an_unknown_feedback_naming_valid_values():
+    """feedback must be 'sensor' or 'current'."""
+    with pytest.raises(ValueError, match="feedback.*sensor.*current"):
+        tune(feedback="both", duration_s=0.01, max_evaluations=1)
+
+
+def test_tune_cli_short_mode_prints_both_gain_sets_and_writes_json_and_figure(tmp_path, capsys):
+    """--duration --max-evaluations: table of paper vs tuned gains and RMS errors, JSON, figure, progress on
+    stderr. (In process: a subprocess would repeat the sensor's ~5 s factory calibration.)"""
+    out = tmp_path / "tune.json"
+    main(["--duration", "0.15", "--max-evaluations", "4", "--json", str(out), "--plot", str(tmp_path)])
+    captured = capsys.readouterr()
+    assert "paper" in captured.out and "tuned" in captured.out and "RMS" in captured.out
+    assert "evaluation" in captured.err
+    data = json.loads(out.read_text())
+    assert data["paper"]["kp"] == 0.12 and data["paper"]["ki_per_s"] == 12.0
+    assert all(r["tuned_rms_nm"] <= r["paper_rms_nm"] for r in data["rows"])
+    assert (tmp_path / "tune.png").stat().st_size > 10_000

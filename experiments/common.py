@@ -73,17 +73,25 @@ def add_rerun_args(parser: argparse.ArgumentParser, what: str = "every run's log
     parser.add_argument("--rerun-spawn", action="store_true", help=f"open the rerun viewer on {what}")
 
 
-def record_rerun(args: argparse.Namespace, logs, params: TestbedParams | None = None) -> None:
-    """Record ``logs`` (run name -> :class:`sim.runlog.RunLog`, or a function returning that, called only
-    when recording) as --rerun / --rerun-spawn ask (nothing if neither was given)."""
-    if not (getattr(args, "rerun", None) or getattr(args, "rerun_spawn", False)):
+def rerun_requested(args: argparse.Namespace) -> bool:
+    """Whether --rerun or --rerun-spawn was given (keep or build logs only then)."""
+    return bool(getattr(args, "rerun", None) or getattr(args, "rerun_spawn", False))
+
+
+def record_rerun(args: argparse.Namespace, logs, params: TestbedParams | None = None, series=None) -> None:
+    """Record ``logs`` (run name -> :class:`sim.runlog.RunLog`) and their extra ``series`` (run name -> group ->
+    RunLog, see :func:`sim.recording.record_series`) as --rerun / --rerun-spawn ask (nothing if neither was
+    given). Either may be a function returning it, called only when recording."""
+    if not rerun_requested(args):
         return
     from sim.recording import record_logs
 
     if callable(logs):
         logs = logs()
+    if callable(series):
+        series = series()
 
-    summary = record_logs(logs, params, path=args.rerun, spawn=args.rerun_spawn)
+    summary = record_logs(logs, params, path=args.rerun, spawn=args.rerun_spawn, series=series)
     if summary.path is not None:
         print(f"rerun recording: {summary.path} ({len(summary.runs)} runs)")
 

@@ -1,10 +1,18 @@
 """What the simulation gets wrong on a measured log, which effect causes it, and how much the fix predicts.
 
     python -m experiments.discrepancy LOG --rig RIG.toml [--json OUT] [--plot DIR] [--save-rig OUT.toml]
-                                      [--joint hinge|slide] [--workers N] [--no-replay]
+                                      [--workers N] [--no-replay] [--rerun PATH.rrd] [--rerun-spawn]
 
 LOG is a run log (CSV, Parquet or .mat, docs/run_log_format.md); RIG.toml describes what produced it
-(docs/discrepancy.md). Neither file is modified. Progress goes to stderr.
+(docs/discrepancy.md); the joint (hinge or slide) comes from the rig. Neither file is modified. Progress goes
+to stderr.
+
+--rerun / --rerun-spawn record the measured log as the run ``/measured_<LOG stem>``: a testbed log with the
+plant's columns as a simulated run is (3D testbed, torques, voltages, temperature) plus its angles under
+``position/`` [rad]; a rigid-joint log as its command under ``effort/`` and its position under ``position/``
+(no 3D). Beside them the residual channels before and after the findings (``residual_<channel>/baseline``,
+``.../extended``) and, when the replay ran, the measured against the baseline and extended rig's replayed
+signal (``replay/measured``, ``replay/baseline``, ``replay/extended``, in the replayed signal's unit).
 """
 
 from __future__ import annotations
@@ -13,12 +21,56 @@ import argparse
 import sys
 from pathlib import Path
 
-from experiments.common import write_json
-from sim.discrepancy.analysis import analyse
+from experiments.common import add_rerun_args, record_rerun, write_json
+from sim.discrepancy.analysis import DiscrepancyResult, analyse
 from sim.discrepancy.report import format_result, plot_result
-from sim.discrepancy.rig import RigError, load_rig, save_rig
+from sim.discrepancy.rig import Rig, RigError, load_rig, save_rig
 from sim.discrepancy.signals import AnalysisConfig
 from sim.logio import LogError, read_log
+from sim.runlog import RunLog
+
+# log column -> series name under /<run>/position
+POSITION_SERIES = {"testbed": (("q", "lever"), ("q_motor", "motor")), "rigid-joint": (("q", "joint"),)}
+
+
+def run_name(log_path: Path) -> str:
+    """The measured log's run name in a recording: 'measured <file stem>'."""
+    return f"measured {log_path.stem}"
+
+
+def measured_run(log: RunLog, rig: Rig) -> RunLog:
+    """The measured log as :func:`sim.recording.record_run` draws it: a testbed log with the rig's fixture and
+    lever length (3D testbed and torque series from its columns); a rigid-joint log without columns (its
+    command and position go to :func:`measured_series`; no 3D)."""
+    if rig.model == "testbed":
+        return RunLog(log.columns, log.units, {**log.meta, "fixture": rig.fixture,
+                                               "lever_length_m": rig.params.lever.length_m})
+    return RunLog({"time": log["time"]}, {"time": "s"}, {**log.meta, "fixture": f"rigid-joint {rig.joint}"})
+
+
+def _group(time_s, series: dict[str, tuple]) -> RunLog:
+    """A series group: name -> (values, unit) on ``time_s`` [s]."""
+    return RunLog({"time": time_s, **{k: v for k, (v, _) in series.items()}},
+                  {"time": "s", **{k: u for k, (_, u) in series.items()}})
+
+
+def measured_series(log: RunLog, rig: Rig, result: DiscrepancyResult) -> dict[str, RunLog]:
+    """Extra series of the measured run (group -> RunLog): positions, the rigid joint's command, the residual
+    channels before and after the findings, and the replay of the held-out part if it ran."""
+    t = log["time"]
+    positions = {name: (log[c], log.units[c]) for c, name in POSITION_SERIES[rig.model] if c in log.columns}
+    groups = {"position": _group(t, positions)} if positions else {}
+    if rig.model != "testbed":
+        groups["effort"] = _group(t, {"command": (log["tau_cmd"], log.units["tau_cmd"])})
+    for c, before in result.residuals_baseline.items():
+        groups[f"residual {c}"] = _group(result.time, {"baseline": (before, result.units[c]),
+                                                       "extended": (result.residuals_final[c], result.units[c])})
+    r = result.replay
+    if r:
+        groups["replay"] = _group(r["time"], {"measured": (r["measured"], r["unit"]),
+                                              "baseline": (r["simulated_baseline"], r["unit"]),
+                                              "extended": (r["simulated_extended"], r["unit"])})
+    return groups
 
 
 def main(argv: list[str] | None = None) -> None:
@@ -30,6 +82,8 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--save-rig", type=Path, metavar="TOML", help="write the extended rig (must not exist)")
     parser.add_argument("--workers", type=int, default=2, help="processes for the candidate fits (default 2)")
     parser.add_argument("--no-replay", action="store_true", help="skip the MuJoCo replay of the held-out part")
+    add_rerun_args(parser, "the measured log (3D testbed if it has the plant's columns, time series), the "
+                           "residuals before and after, and the replay of the held-out part if it ran")
     args = parser.parse_args(argv)
     try:
         rig = load_rig(args.rig)
@@ -57,6 +111,9 @@ def main(argv: list[str] | None = None) -> None:
         header = (f"Extended rig written by experiments.discrepancy from {args.log.name} and {args.rig.name}.\n"
                   f"Findings: {', '.join(result.found) or 'none'}.")
         print(f"wrote {save_rig(result.extended_rig, args.save_rig, header=header)}")
+    name = run_name(args.log)
+    record_rerun(args, lambda: {name: measured_run(log, rig)}, rig.params,
+                 lambda: {name: measured_series(log, rig, result)})
     sys.stdout.flush()
 
 

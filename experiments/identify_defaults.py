@@ -1,6 +1,6 @@
 """Identify the default gear friction and backlash parameters from the paper's Tables VI-VII.
 
-    python -m experiments.identify_defaults [--json PATH]
+    python -m experiments.identify_defaults [--json PATH] [--duration S] [--rerun PATH.rrd] [--rerun-spawn]
 
 What it fits, to what
 ---------------------
@@ -33,6 +33,10 @@ Two measurement-protocol quantities the paper leaves out are inferred in closed 
 
 Nothing is scaled to hit a number: the script only chooses among candidate parameter sets and reports the
 residual of every figure for the chosen one.
+
+--rerun / --rerun-spawn record the step, disturbance and sinusoid runs of the best candidate: the runs of the
+best candidate so far are kept during the search (no re-run). --duration shortens every test (a quick check of
+the command line; the scores need the full length).
 """
 
 from __future__ import annotations
@@ -46,10 +50,12 @@ from pathlib import Path
 
 import numpy as np
 
-from experiments.common import write_json
+from experiments.common import (_positive_seconds, add_rerun_args, record_rerun, rerun_requested,
+                                write_json)
 from experiments.sinusoid import run_sinusoid
 from experiments.step import run_step
 from sim.params import TestbedParams
+from sim.runlog import RunLog
 
 GRID = {("friction", "coulomb_torque_nm"): (0.09, 0.125),
         ("friction", "load_friction_coefficient"): (0.03, 0.05),
@@ -65,9 +71,23 @@ def candidate_params(values: tuple[float, ...]) -> tuple[TestbedParams, dict]:
     return TestbedParams().replace(**overrides), overrides
 
 
+def run_candidate(params: TestbedParams, seed: int = 0,
+                  duration_s: float | None = None) -> tuple[list[dict], dict[str, RunLog]]:
+    """The Table VI-VII rows (and the step/disturbance text rows) for one parameter set, and the run logs they
+    come from (run name -> RunLog, named as experiments.step and experiments.sinusoid record them).
+
+    ``duration_s`` shortens every test [s] (a quick check; the paper's figures need the full length).
+    """
+    step = run_step(params, seed=seed, duration_s=duration_s)
+    sine = run_sinusoid(params, seed=seed, duration_s=duration_s)
+    logs = {**{f"{c.name}, {c.feedback}": c.log for c in step.cases},
+            **{f"{c.waveform.name}, {c.feedback}": c.log for c in sine.cases}}
+    return step.rows() + sine.rows(), logs
+
+
 def table_rows(params: TestbedParams, seed: int = 0) -> list[dict]:
     """The Table VI-VII rows (and the step/disturbance text rows) for one parameter set."""
-    return run_step(params, seed=seed).rows() + run_sinusoid(params, seed=seed).rows()
+    return run_candidate(params, seed)[0]
 
 
 def score(rows: list[dict]) -> tuple[float, float]:
@@ -79,14 +99,24 @@ def score(rows: list[dict]) -> tuple[float, float]:
 def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--json", type=Path, help="write every candidate's score and the best one's rows as JSON")
+    parser.add_argument("--duration", type=_positive_seconds, metavar="S",
+                        help="shorten every test to S seconds (a quick check of the command line; the scores "
+                             "need the full length)")
+    add_rerun_args(parser, "the best candidate's step, disturbance and sinusoid runs (kept during the search, "
+                           "not re-run)")
     args = parser.parse_args(argv)
+    keep = rerun_requested(args)
     results = []
+    best_rms, best_logs, best_params = math.inf, {}, None  # the best candidate so far and its runs (--rerun)
     combos = list(itertools.product(*GRID.values()))
     for i, values in enumerate(combos):
         params, overrides = candidate_params(values)
         start = time.perf_counter()
-        rows = table_rows(params)
+        rows, logs = run_candidate(params, duration_s=args.duration)
         rms_log, max_log = score(rows)
+        if keep and rms_log < best_rms:  # strict: the first of equal scores, as the stable sort below ranks them
+            best_rms, best_logs, best_params = rms_log, logs, params
+        del logs  # only the best candidate's runs stay in memory
         results.append({"overrides": overrides, "rms_log_ratio": rms_log, "max_log_ratio": max_log,
                         "within_1_5": sum(1 for r in rows if r["table"] in FIT_TABLES and r["ratio"]
                                           and abs(math.log(r["ratio"])) <= math.log(1.5)),
@@ -106,6 +136,9 @@ def main(argv: list[str] | None = None) -> None:
         print(f"  {r['table']:8s} {r['quantity']:72s} paper {r['paper']:<8.4g} sim {r['sim']:<9.4g} {res}")
     if args.json:
         write_json(args.json, {"grid": {f"{g}.{n}": v for (g, n), v in GRID.items()}, "candidates": results})
+    if keep:
+        print(f"rerun: the best candidate's runs ({best['overrides']})")
+    record_rerun(args, best_logs, best_params)
 
 
 if __name__ == "__main__":

@@ -1,6 +1,9 @@
 """Model card: every parameter with unit and source, and the derived and simulated quantities.
 
-    python -m experiments.plant [--params TOML] [--json PATH]
+    python -m experiments.plant [--params TOML] [--json PATH] [--rerun PATH.rrd] [--rerun-spawn]
+
+--rerun / --rerun-spawn record the two measurements the card simulates tick by tick: the breakaway ramp (free
+fixture) and the backlash reversal (locked fixture), as they ran for the card (no extra simulation).
 """
 
 from __future__ import annotations
@@ -10,10 +13,12 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from experiments.common import add_params_arg, load_params_arg, write_json
+from experiments.common import (add_params_arg, add_rerun_args, load_params_arg, record_rerun, rerun_requested,
+                                write_json)
 from models.gim8108_testbed.derived import FIXTURES, derive, lumped_modes_hz, physics_timestep
 from sim.characterize import linearizable_plant, linearized_modes, measure_backlash, measure_breakaway
 from sim.params import TestbedParams
+from sim.runlog import RunLog
 
 PAPER_FLEXURE_MODE_ESTIMATE_HZ = 5975.0  # paper Sec. II, sqrt(k_z/J_z)/2π
 PAPER_FLEXURE_MODE_FEA_HZ = 3407.0  # paper Sec. II and Table II, SolidWorks first mode
@@ -22,18 +27,34 @@ LOCKED_PRELOAD_NM = 1.0  # closes the backlash for the locked fixture's linearis
 
 @dataclass(frozen=True)
 class PlantCard:
-    """Parameters (value, unit, source) and derived quantities (value, unit) of a parameter set."""
+    """Parameters (value, unit, source) and derived quantities (value, unit) of a parameter set; ``logs``:
+    the run logs of the simulated measurements (run name -> RunLog) when asked for (not part of the card's
+    JSON)."""
 
     parameters: dict[str, dict[str, Any]]
     derived: dict[str, dict[str, Any]]
     modes: dict[str, list[dict[str, float]]] = field(default_factory=dict)
+    logs: dict[str, RunLog] = field(default_factory=dict, repr=False, compare=False)
 
     def to_dict(self) -> dict[str, Any]:
         return {"parameters": self.parameters, "derived": self.derived, "modes": self.modes}
 
 
-def run_plant_card(params: TestbedParams | None = None) -> PlantCard:
-    """Compute the model card: closed forms, step rule, modes and simulated breakaway and backlash."""
+BREAKAWAY_RUN = "breakaway ramp, free"
+BACKLASH_RUN = "backlash reversal, locked"
+
+
+def run_plant_card(params: TestbedParams | None = None, *, keep_logs: bool = False) -> PlantCard:
+    """Compute the model card: closed forms, step rule, modes and simulated breakaway and backlash.
+
+    Parameters
+    ----------
+    params : TestbedParams, optional
+        The parameter set (defaults if None).
+    keep_logs : bool
+        Also keep the run logs of the breakaway ramp and the backlash reversal (``PlantCard.logs``, under
+        ``BREAKAWAY_RUN`` and ``BACKLASH_RUN``); the card's figures are the same.
+    """
     p = params or TestbedParams()
     d = derive(p)
     derived: dict[str, dict[str, Any]] = {}
@@ -70,13 +91,16 @@ def run_plant_card(params: TestbedParams | None = None) -> PlantCard:
     control = modes["locked"][0]
     put("locked_control_mode_natural_frequency", control["natural_frequency_hz"], "Hz")
     put("locked_control_mode_damping_ratio", control["damping_ratio"], "1")
-    put("breakaway_torque_measured", measure_breakaway(p).torque_nm, "N·m")
+    breakaway = measure_breakaway(p, keep_log=keep_logs)
+    backlash = measure_backlash(p, keep_log=keep_logs)
+    put("breakaway_torque_measured", breakaway.torque_nm, "N·m")
     put("breakaway_torque_parameter", p.friction.breakaway_torque_nm, "N·m")
-    put("backlash_width_measured", measure_backlash(p).width_rad, "rad")
+    put("backlash_width_measured", backlash.width_rad, "rad")
     put("backlash_width_parameter", p.backlash.width_rad, "rad")
     parameters = {name: {"value": value, "unit": unit, "source": source}
                   for name, value, unit, source in p.rows()}
-    return PlantCard(parameters, derived, modes)
+    logs = {BREAKAWAY_RUN: breakaway.log, BACKLASH_RUN: backlash.log} if keep_logs else {}
+    return PlantCard(parameters, derived, modes, logs)
 
 
 def format_card(card: PlantCard) -> str:
@@ -103,12 +127,16 @@ def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description="Print the testbed's model card.")
     add_params_arg(parser)
     parser.add_argument("--json", type=Path, help="write the card as JSON to this path")
+    add_rerun_args(parser, "the breakaway ramp (free fixture) and backlash reversal (locked fixture) runs the "
+                           "card simulates (kept while measuring, not re-run)")
     args = parser.parse_args(argv)
-    card = run_plant_card(load_params_arg(parser, args))
+    params = load_params_arg(parser, args)
+    card = run_plant_card(params, keep_logs=rerun_requested(args))
     print(format_card(card))
     if args.json:
         write_json(args.json, card.to_dict())
         print(f"\nwrote {args.json}")
+    record_rerun(args, card.logs, params)
 
 
 if __name__ == "__main__":

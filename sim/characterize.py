@@ -3,13 +3,14 @@
 from __future__ import annotations
 
 import math
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, field
 
 import mujoco
 import numpy as np
 
 from sim.params import TestbedParams
-from sim.plant import Plant
+from sim.plant import SIGNAL_UNITS, Plant
+from sim.runlog import RunLog
 
 # Paper Sec. V: breakaway = smallest command at which the motor velocity first exceeds a small threshold
 # for a sustained duration (> 100 ms) under a ramp.
@@ -18,33 +19,70 @@ BREAKAWAY_VELOCITY_THRESHOLD_RAD_S = 0.01  # output side; assumed: "a small thre
 BREAKAWAY_RAMP_NM_PER_S = 0.05  # slow enough that the 100 ms window adds only 0.005 N·m
 
 
+class _TickRecorder:
+    """The plant's signals (``sim.plant.SIGNAL_UNITS``) after every control tick of a measurement, kept only
+    when asked (``keep``); reading them does not change the plant."""
+
+    def __init__(self, plant: Plant, n_ticks: int, keep: bool) -> None:
+        self.plant, self.keep = plant, keep
+        self.times = np.empty(n_ticks if keep else 0)
+        self.rows = np.empty((len(self.times), len(SIGNAL_UNITS)))
+
+    def record(self, k: int) -> None:
+        """Store the signals after tick ``k`` (0-based)."""
+        if self.keep:
+            self.times[k] = self.plant.time_s
+            self.plant.read_signals(self.rows[k])
+
+    def log(self, n_ticks: int, meta: dict) -> RunLog | None:
+        """The first ``n_ticks`` as a run log (columns and units of ``SIGNAL_UNITS``), None if not kept."""
+        if not self.keep:
+            return None
+        plant = self.plant
+        columns = {"time": self.times[:n_ticks].copy(),
+                   **{name: self.rows[:n_ticks, i].copy() for i, name in enumerate(SIGNAL_UNITS)}}
+        return RunLog(columns, {"time": "s", **SIGNAL_UNITS},
+                      {"fixture": plant.fixture, "lever_length_m": plant.params.lever.length_m,
+                       "physics_timestep_s": plant.timestep_s, "substeps": plant.n_substeps, **meta})
+
+
 @dataclass(frozen=True)
 class Breakaway:
-    """Breakaway torque [N·m] measured on a ramp in the free fixture, and when it happened [s]."""
+    """Breakaway torque [N·m] measured on a ramp in the free fixture, and when it happened [s].
+
+    ``log`` is the ramp's run log up to the detection (plant signals every tick), when asked for.
+    """
 
     torque_nm: float
     time_s: float
     ramp_nm_per_s: float
+    log: RunLog | None = field(default=None, repr=False, compare=False)
 
 
 def measure_breakaway(params: TestbedParams | None = None, *, sign: float = 1.0,
-                      ramp_nm_per_s: float = BREAKAWAY_RAMP_NM_PER_S) -> Breakaway:
-    """Ramp the motor command from zero in the free fixture until the motor moves for > 100 ms."""
+                      ramp_nm_per_s: float = BREAKAWAY_RAMP_NM_PER_S, keep_log: bool = False) -> Breakaway:
+    """Ramp the motor command from zero in the free fixture until the motor moves for > 100 ms.
+
+    ``keep_log``: also return the ramp's run log (``Breakaway.log``); the measurement is the same.
+    """
     plant = Plant(params, "free")
     p = plant.params
     tick = p.simulation.control_period_s
     sustain_ticks = round(BREAKAWAY_SUSTAIN_S / tick)
     max_torque = min(p.motor.peak_torque_nm, 4.0 * p.friction.breakaway_torque_nm)
     n = math.ceil(max_torque / ramp_nm_per_s / tick)
+    recorder = _TickRecorder(plant, n, keep_log)
     moving_since = None
     for k in range(n):
         tau = sign * ramp_nm_per_s * (k + 1) * tick
         plant.step(tau)
+        recorder.record(k)
         if abs(plant.motor_velocity_rad_s) > BREAKAWAY_VELOCITY_THRESHOLD_RAD_S:
             moving_since = k if moving_since is None else moving_since
             if k - moving_since >= sustain_ticks:
+                log = recorder.log(k + 1, {"experiment": "breakaway ramp", "ramp_nm_per_s": sign * ramp_nm_per_s})
                 return Breakaway(abs(sign * ramp_nm_per_s * (moving_since + 1) * tick),
-                                 (moving_since + 1) * tick, ramp_nm_per_s)
+                                 (moving_since + 1) * tick, ramp_nm_per_s, log)
         else:
             moving_since = None
     raise RuntimeError(f"no breakaway below {max_torque:.3g} N·m: the gear never moved on the ramp")
@@ -52,19 +90,24 @@ def measure_breakaway(params: TestbedParams | None = None, *, sign: float = 1.0,
 
 @dataclass(frozen=True)
 class BacklashMeasurement:
-    """Dead band [rad] from the motor angle against the load-cell torque on both sides of a reversal."""
+    """Dead band [rad] from the motor angle against the load-cell torque on both sides of a reversal.
+
+    ``log`` is the reversal's run log (plant signals every tick), when asked for.
+    """
 
     width_rad: float
     compliance_rad_per_nm: float
+    log: RunLog | None = field(default=None, repr=False, compare=False)
 
 
 def measure_backlash(params: TestbedParams | None = None, *, amplitude_nm: float = 2.0,
-                     period_s: float = 4.0) -> BacklashMeasurement:
+                     period_s: float = 4.0, keep_log: bool = False) -> BacklashMeasurement:
     """Slow triangular torque reversal in the locked fixture.
 
     With a stop closed, q_motor = τ_lc·(1/K_t + 1/k_lc) ± gap/2 whatever the gear friction (it acts between
     gear and ground). Lines fitted to the loaded part of each branch (|τ_lc| in 30-90 % of the amplitude)
-    meet τ = 0 a gap apart.
+    meet τ = 0 a gap apart. ``keep_log``: also return the reversal's run log (``BacklashMeasurement.log``);
+    the measurement is the same.
     """
     plant = Plant(params, "locked")
     tick = plant.params.simulation.control_period_s
@@ -72,8 +115,10 @@ def measure_backlash(params: TestbedParams | None = None, *, amplitude_nm: float
     phase = (t / period_s) % 1.0
     triangle = amplitude_nm * (1.0 - 4.0 * np.abs(phase - 0.5))  # -A at t=0, +A at T/2
     q_motor, tau_lc = np.empty(len(t)), np.empty(len(t))
+    recorder = _TickRecorder(plant, len(t), keep_log)
     for k, tau in enumerate(triangle):
         plant.step(tau)
+        recorder.record(k)
         q_motor[k], tau_lc[k] = plant.motor_angle_rad, plant.loadcell_torque_nm
     settle = t > 0.25 * period_s  # skip the start-up from rest
     fits = []
@@ -81,7 +126,9 @@ def measure_backlash(params: TestbedParams | None = None, *, amplitude_nm: float
         sel = settle & (side * tau_lc > 0.3 * amplitude_nm) & (side * tau_lc < 0.9 * amplitude_nm)
         fits.append(np.polyfit(tau_lc[sel], q_motor[sel], 1))
     (slope_pos, icpt_pos), (slope_neg, icpt_neg) = fits
-    return BacklashMeasurement(icpt_pos - icpt_neg, 0.5 * (slope_pos + slope_neg))
+    log = recorder.log(len(t), {"experiment": "backlash reversal", "amplitude_nm": amplitude_nm,
+                                "period_s": period_s})
+    return BacklashMeasurement(icpt_pos - icpt_neg, 0.5 * (slope_pos + slope_neg), log)
 
 
 @dataclass(frozen=True)

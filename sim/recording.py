@@ -16,6 +16,8 @@ entity                             what                                         
                                    (rig records: mini85, applied, sensor)
 ``/<run>/voltages/v1`` ... ``v8``  photo-reflector channel voltages [V] (sensor-feedback runs)  every tick
 ``/<run>/temperature/board``       TMP117 board temperature [°C]                                every tick
+``/<run>/<group>/<name>``          extra series given with the run (``series``: e.g. a replay   their own
+                                   of measured against simulated signals), each with its unit   time column
 =================================  ===========================================================  ==========
 
 on the timeline ``time`` (the run's simulated time). The geometry (sizes, positions, colours) is read from the
@@ -23,14 +25,16 @@ compiled :class:`mujoco.MjModel` of the run's parameters and fixture; the 3D pos
 ``pose_rate_hz`` (default 50 Hz, every 20th tick of a 1 kHz run) to keep recording cheap, the time series
 at every tick, all in bulk with ``rerun.send_columns``. Angles are drawn to scale unless
 ``angle_exaggeration`` > 1: in the locked fixture the lever turns micro-radians, so the arrow carries the
-load.
+load. A run's extra series are :class:`sim.runlog.RunLog` s too (one per group, any columns with units,
+on their own time column); the blueprint gives each group a time-series view in that run's tab, and leaves
+out the views a run has no data for (no 3D view for a record without mechanics).
 """
 
 from __future__ import annotations
 
 import math
 import re
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import mujoco
@@ -50,6 +54,11 @@ BODY_ENTITIES = {"stator": "motor", "output": "hub", "lever": "flexure", "loadce
 TORQUE_SIGNALS = (("reference", "tau_ref"), ("sensor", "tau_sensor"), ("feedback", "tau_feedback"),
                   ("command", "tau_cmd"), ("flexure", "tau_flexure"),
                   ("mini85", "tau_mini85"), ("applied", "tau_applied"))  # the calibration rig's records
+FIXED_VIEWS = (  # group, view title, row share, log columns whose presence gives the view something to show
+    ("torque", "torque [N·m]", 3, tuple(c for _, c in TORQUE_SIGNALS) + ("force_loadcell",)),
+    ("voltages", "channel voltages [V]", 2, tuple(f"v{k}" for k in range(1, 9))),
+    ("temperature", "temperature [°C]", 1, ("temperature",)))
+FIXED_GROUPS = ("testbed",) + tuple(group for group, *_ in FIXED_VIEWS)  # entity groups of the fixed layout
 
 
 @dataclass(frozen=True)
@@ -64,11 +73,14 @@ class RecordingSummary:
         Entity name of each run -> its number of time-series samples.
     pose_samples : dict of str to int
         Entity name of each run -> number of 3D pose samples.
+    series : dict of str to dict of str to int
+        Entity name of each run with extra series -> group entity name -> its number of samples.
     """
 
     path: Path | None
     runs: dict[str, int]
     pose_samples: dict[str, int]
+    series: dict[str, dict[str, int]] = field(default_factory=dict)
 
 
 def entity_name(name: str) -> str:
@@ -159,7 +171,7 @@ def record_run(rec: rr.RecordingStream, name: str, log: RunLog, params: TestbedP
     if "temperature" in cols:
         _send_scalar(rec, f"{root}/temperature/board", times, cols["temperature"], "board (TMP117) [°C]")
 
-    if fixture not in ("locked", "free") or "q" not in cols:
+    if not _has_mechanics(log):
         return n, 0  # a record without mechanics (calibration rig, chamber): no 3D testbed
     _log_geometry(rec, root, params, fixture)
     dt = float(np.median(np.diff(t))) if n > 1 else params.simulation.control_period_s
@@ -184,23 +196,81 @@ def record_run(rec: rr.RecordingStream, name: str, log: RunLog, params: TestbedP
     return n, len(idx)
 
 
-def blueprint(names: list[str]) -> rrb.Blueprint:
-    """One tab per run: the 3D testbed on the left, torques, voltages and temperature stacked on the right."""
-    tabs = []
-    for name in names:
-        root = "/" + entity_name(name)
-        tabs.append(rrb.Horizontal(
-            rrb.Spatial3DView(origin=f"{root}/testbed", name="testbed"),
-            rrb.Vertical(rrb.TimeSeriesView(origin=f"{root}/torque", name="torque [N·m]"),
-                         rrb.TimeSeriesView(origin=f"{root}/voltages", name="channel voltages [V]"),
-                         rrb.TimeSeriesView(origin=f"{root}/temperature", name="temperature [°C]"),
-                         row_shares=[3, 2, 1]),
-            column_shares=[2, 3], name=name))
+def record_series(rec: rr.RecordingStream, name: str, group: str, log: RunLog) -> int:
+    """Send a run's extra series to ``rec``: every column of ``log`` but ``time`` under
+    ``/<entity_name(name)>/<entity_name(group)>/<entity_name(column)>``, labelled with its unit; returns the
+    number of samples.
+
+    Parameters
+    ----------
+    rec : rerun.RecordingStream
+    name : str
+        The run the series belong to.
+    group : str
+        The group (one time-series view); not one of the fixed layout's ``FIXED_GROUPS``.
+    log : RunLog
+        The series on their own ``time`` [s] column (any names and units).
+    """
+    _check_group(name, group)
+    path = f"/{entity_name(name)}/{entity_name(group)}"
+    times = rr.TimeColumn(TIMELINE, duration=np.asarray(log["time"], dtype=float))
+    for column, values in log.columns.items():
+        if column != "time":
+            _send_scalar(rec, f"{path}/{entity_name(column)}", times, values, f"{column} [{log.units[column]}]")
+    return len(log)
+
+
+def _check_group(name: str, group: str) -> None:
+    if entity_name(group) in FIXED_GROUPS:
+        raise ValueError(f"series group {group!r} of run {name!r} clashes with the fixed layout's "
+                         f"{', '.join(FIXED_GROUPS)}; choose another group name")
+
+
+def _group_title(group: str, log: RunLog) -> str:
+    """'replay [N·m]' when every series of the group has one unit, else the group's name."""
+    units = {u for c, u in log.units.items() if c != "time" and c in log.columns}
+    return f"{group} [{units.pop()}]" if len(units) == 1 else group
+
+
+def _has_mechanics(log: RunLog) -> bool:
+    """Whether a run drives the 3D testbed: a plant fixture and the lever angle ``q``."""
+    return log.meta.get("fixture", "locked") in ("locked", "free") and "q" in log.columns
+
+
+def _run_tab(name: str, log: RunLog | None, groups: dict[str, RunLog]) -> rrb.Container:
+    """A run's tab: the 3D testbed (if the run has mechanics) beside the time-series views stacked (the fixed
+    ones the run has data for, then one per extra series group). Without ``log`` every fixed view is shown."""
+    root = "/" + entity_name(name)
+    views, shares = [], []
+    for group, title, share, columns in FIXED_VIEWS:
+        if log is None or any(c in log.columns for c in columns):
+            views.append(rrb.TimeSeriesView(origin=f"{root}/{group}", name=title))
+            shares.append(share)
+    for group, extra in groups.items():
+        views.append(rrb.TimeSeriesView(origin=f"{root}/{entity_name(group)}", name=_group_title(group, extra)))
+        shares.append(2)
+    if log is not None and not _has_mechanics(log):
+        return rrb.Vertical(*views, row_shares=shares, name=name)
+    return rrb.Horizontal(rrb.Spatial3DView(origin=f"{root}/testbed", name="testbed"),
+                          rrb.Vertical(*views, row_shares=shares), column_shares=[2, 3], name=name)
+
+
+def blueprint(names: list[str], series: dict[str, dict[str, RunLog]] | None = None,
+              logs: dict[str, RunLog] | None = None) -> rrb.Blueprint:
+    """One tab per run: the 3D testbed on the left, torques, voltages and temperature stacked on the right,
+    then one time-series view per group of the run's extra ``series`` (run name -> group -> RunLog).
+
+    With the runs' ``logs`` (run name -> RunLog) a run without mechanics (a rig record, a rigid joint) has no
+    3D view, and a fixed view is left out when the run has none of its columns.
+    """
+    series, logs = series or {}, logs or {}
+    tabs = [_run_tab(name, logs.get(name), series.get(name, {})) for name in names]
     return rrb.Blueprint(rrb.Tabs(*tabs) if len(tabs) > 1 else tabs[0], collapse_panels=False)
 
 
 def record_logs(logs: dict[str, RunLog], params: TestbedParams | None = None, *, path: str | Path | None = None,
-                spawn: bool = False, application_id: str = "torquebed", **kwargs) -> RecordingSummary:
+                spawn: bool = False, application_id: str = "torquebed",
+                series: dict[str, dict[str, RunLog]] | None = None, **kwargs) -> RecordingSummary:
     """Record runs to an .rrd file (``path``) and/or a spawned viewer (``spawn``).
 
     Parameters
@@ -213,6 +283,9 @@ def record_logs(logs: dict[str, RunLog], params: TestbedParams | None = None, *,
         Write the recording here (parent folders created).
     spawn : bool
         Start the rerun viewer and stream to it.
+    series : dict of str to dict of str to RunLog, optional
+        Extra series of some runs: run name (a key of ``logs``) -> group -> the group's series (see
+        :func:`record_series`).
     **kwargs
         ``pose_rate_hz`` and ``angle_exaggeration`` of :func:`record_run`.
     """
@@ -222,8 +295,10 @@ def record_logs(logs: dict[str, RunLog], params: TestbedParams | None = None, *,
     slugs = [entity_name(n) for n in names]
     if len(set(slugs)) != len(slugs):
         raise ValueError(f"run names must differ as entity paths: {slugs}")
+    series = series or {}
+    _check_series(names, series)
     rec = rr.RecordingStream(application_id, recording_id=f"{application_id}-{'-'.join(slugs)}"[:200])
-    bp = blueprint(names)
+    bp = blueprint(names, series, logs)
     sinks = []
     if path is not None:
         path = Path(path)
@@ -236,6 +311,20 @@ def record_logs(logs: dict[str, RunLog], params: TestbedParams | None = None, *,
     runs, poses = {}, {}
     for name, slug in zip(names, slugs, strict=True):
         runs[slug], poses[slug] = record_run(rec, name, logs[name], params, **kwargs)
+    extra = {entity_name(name): {entity_name(group): record_series(rec, name, group, log)
+                                 for group, log in groups.items()} for name, groups in series.items()}
     rec.flush()
     rec.disconnect()
-    return RecordingSummary(path, runs, poses)
+    return RecordingSummary(path, runs, poses, extra)
+
+
+def _check_series(names: list[str], series: dict[str, dict[str, RunLog]]) -> None:
+    """Extra series belong to recorded runs, in groups apart from the fixed layout and from each other."""
+    for name, groups in series.items():
+        if name not in names:
+            raise ValueError(f"series for run {name!r}, which is not among the recorded runs {names}")
+        for group in groups:
+            _check_group(name, group)
+        slugs = [entity_name(g) for g in groups]
+        if len(set(slugs)) != len(slugs):
+            raise ValueError(f"series groups of run {name!r} must differ as entity paths: {slugs}")

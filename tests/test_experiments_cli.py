@@ -56,3 +56,15 @@ def test_bad_flags_are_usage_errors_naming_the_flag(args, message):
     """A non-positive duration or an unknown feedback exits with status 2 and names the flag."""
     result = run("experiments.step", *args)
     assert result.returncode == 2 and message in result.stderr
+
+
+@pytest.mark.parametrize("module,what", [("experiments.discrepancy", "replay"),
+                                         ("experiments.plant", "breakaway ramp"),
+                                         ("experiments.identify_defaults", "not re-run")])
+def test_analysis_commands_offer_rerun_and_say_what_they_record(module, what):
+    """experiments.discrepancy, .plant and .identify_defaults take --rerun PATH.rrd and --rerun-spawn, and their
+    help says what the recording holds."""
+    result = run(module, "--help")
+    assert result.returncode == 0, result.stderr
+    text = " ".join(result.stdout.split())
+    assert "--rerun PATH.rrd" in text and "--rerun-spawn" in text and what in text

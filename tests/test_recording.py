@@ -133,3 +133,196 @@ def test_experiment_commands_write_their_runs_to_rerun(tmp_path, capsys):
     rows, _ = read_back(path)
     assert rows["/open-loop_step_0.1_N_m/torque/command"] == 50
     assert "rerun recording" in capsys.readouterr().out
+
+
+# ---------------------------------------------------------------- extra series, blueprint, the analysis CLIs
+def _views(container) -> list:
+    """Every view of a blueprint container, depth first."""
+    out = []
+    for item in container.contents:
+        out.extend(_views(item) if hasattr(item, "row_shares") else [item])
+    return out
+
+
+def series_labels(path, prefix: str) -> set[str]:
+    """The series names (SeriesLines, with their units) of the entities under ``prefix``."""
+    labels = set()
+    for chunk in rr.chunk.RrdReader(path).stream().to_chunks():
+        batch = chunk.to_record_batch()
+        if chunk.is_static and chunk.entity_path.startswith(prefix) and "SeriesLines:names" in batch.schema.names:
+            labels.update(name for names in batch.column("SeriesLines:names").to_pylist() for name in names)
+    return labels
+
+
+def _series_log(n: int, unit: str = "N·m", **columns) -> "RunLog":
+    from sim.runlog import RunLog
+
+    return RunLog({"time": np.arange(1, n + 1) * 1e-3, **columns}, {"time": "s", **{c: unit for c in columns}})
+
+
+def test_extra_series_go_under_their_group_on_their_own_time_with_a_view(tmp_path, sensor_log):
+    """A run's extra series (here 120 samples beside a 300-tick run) are recorded under /<run>/<group>/<name>
+    with their own sample count, and the run's tab gets a view titled with the group's unit; the fixed
+    layout of the run is unchanged."""
+    from sim.recording import blueprint
+
+    extra = _series_log(120, measured=np.zeros(120), **{"simulated baseline": np.ones(120)})
+    path = tmp_path / "extra.rrd"
+    summary = record_logs({"a": sensor_log}, path=path, series={"a": {"replay": extra}})
+    rows, _ = read_back(path)
+    assert rows["/a/replay/measured"] == 120 and rows["/a/replay/simulated_baseline"] == 120
+    assert rows["/a/torque/reference"] == N_TICKS and summary.series == {"a": {"replay": 120}}
+    views = _views(blueprint(["a"], {"a": {"replay": extra}}).root_container)
+    assert [(v.origin, v.name) for v in views][-1] == ("/a/replay", "replay [N·m]")
+    assert "/a/replay" not in {v.origin for v in _views(blueprint(["a"]).root_container)}
+
+
+def test_extra_series_clashing_with_the_layout_or_without_a_run_are_refused(tmp_path, sensor_log):
+    """A group named like a fixed one, or series for a run that is not recorded, is refused by name."""
+    extra = _series_log(10, x=np.zeros(10))
+    with pytest.raises(ValueError, match="'torque'.*fixed layout"):
+        record_logs({"a": sensor_log}, path=tmp_path / "e.rrd", series={"a": {"torque": extra}})
+    with pytest.raises(ValueError, match="'b'.*not among the recorded runs"):
+        record_logs({"a": sensor_log}, path=tmp_path / "f.rrd", series={"b": {"replay": extra}})
+
+
+def test_blueprint_shows_only_what_a_run_has(sensor_log):
+    """Given the logs, a rig record (no mechanics, no temperature) gets no 3D view and no temperature view;
+    a plant run keeps the 3D testbed and all fixed views."""
+    from sim.recording import blueprint
+
+    rig = record_log(np.arange(1, 11) * 0.1, np.full((10, 8), 1.65), tau_sensor_nm=np.zeros(10))
+    tabs = blueprint(["rig", "run"], logs={"rig": rig, "run": sensor_log}).root_container.contents
+    assert [v.origin for v in _views(tabs[0])] == ["/rig/torque", "/rig/voltages"]
+    assert [v.origin for v in _views(tabs[1])] == ["/run/testbed", "/run/torque", "/run/voltages",
+                                                   "/run/temperature"]
+
+
+def test_plant_card_records_the_breakaway_ramp_and_backlash_reversal_it_measured(tmp_path):
+    """experiments.plant --rerun records the two simulated measurements as they ran for the card: the
+    breakaway ramp ends 100 ms (100 ticks) after the motion began at the measured breakaway torque, the
+    reversal is 1.5 periods of 4 s; keeping the logs changes no figure of the card."""
+    import json
+
+    from experiments import plant
+    from sim.characterize import BREAKAWAY_RAMP_NM_PER_S, BREAKAWAY_SUSTAIN_S
+
+    path, out = tmp_path / "plant.rrd", tmp_path / "card.json"
+    plant.main(["--rerun", str(path), "--json", str(out)])
+    breakaway = json.loads(out.read_text())["derived"]["breakaway_torque_measured"]["value"]
+    rows, static = read_back(path)
+    ramp_ticks = round(breakaway / BREAKAWAY_RAMP_NM_PER_S / 1e-3) + round(BREAKAWAY_SUSTAIN_S / 1e-3)
+    assert rows["/breakaway_ramp_free/torque/command"] == ramp_ticks
+    assert rows["/breakaway_ramp_free/testbed/flexure"] == len(range(0, ramp_ticks, 20))
+    assert "/breakaway_ramp_free/torque/loadcell" not in rows  # free fixture: no load cell
+    assert rows["/backlash_reversal_locked/torque/loadcell"] == 6000
+    assert rows["/backlash_reversal_locked/testbed/torque"] == 300
+    assert "/backlash_reversal_locked/testbed/loadcell/boxes" in static
+    card = plant.run_plant_card()
+    assert card.logs == {} and card.derived == plant.run_plant_card(keep_logs=True).derived
+
+
+def test_identify_defaults_records_the_runs_of_one_short_candidate(tmp_path, monkeypatch, capsys):
+    """experiments.identify_defaults --duration --rerun on a one-candidate grid records that candidate's
+    six step, two disturbance and six sinusoid runs."""
+    from experiments import identify_defaults
+
+    monkeypatch.setattr(identify_defaults, "GRID", {("backlash", "width_rad"): (0.5e-3,)})
+    path = tmp_path / "best.rrd"
+    identify_defaults.main(["--duration", "0.05", "--rerun", str(path)])
+    rows, _ = read_back(path)
+    roots = {e.split("/")[1] for e in rows}
+    assert len(roots) == 14 and rows["/step_0.05_N_m_sensor/torque/reference"] == 550
+    assert rows["/disturbance_current/torque/loadcell"] == 50
+    assert rows["/10_N_m_sine_0.2_Hz_sensor/voltages/v1"] == 100
+    assert "rerun recording" in capsys.readouterr().out
+
+
+def test_identify_defaults_records_the_best_candidate_not_the_last(tmp_path, monkeypatch, capsys):
+    """The runs kept are those of the candidate ranked first (here the middle one of three, by a stub whose
+    ratio to the paper is exact for 1 mrad); without --rerun nothing is recorded."""
+    from experiments import identify_defaults
+
+    widths = (0.5e-3, 1.0e-3, 2.0e-3)
+
+    def candidate(params, seed=0, duration_s=None):
+        w = params.backlash.width_rad
+        row = {"table": "VI", "quantity": "q", "unit": "N·m", "paper": 1.0, "sim": w / 1e-3, "ratio": w / 1e-3}
+        return [row], {f"candidate {w * 1e3:g} mrad": _series_log(5, tau_cmd=np.zeros(5))}
+
+    monkeypatch.setattr(identify_defaults, "GRID", {("backlash", "width_rad"): widths})
+    monkeypatch.setattr(identify_defaults, "run_candidate", candidate)
+    path = tmp_path / "best.rrd"
+    identify_defaults.main(["--rerun", str(path)])
+    rows, _ = read_back(path)
+    assert set(rows) == {"/candidate_1_mrad/torque/command"}
+    identify_defaults.main([])
+    assert list(tmp_path.iterdir()) == [path]
+
+
+@pytest.fixture(scope="module")
+def measured_locked(tmp_path_factory):
+    """A 3 s locked-fixture log from the project's simulator (no hidden effect) and its baseline rig."""
+    return _measured("locked", tmp_path_factory.mktemp("locked"))
+
+
+def _measured(experiment, directory):
+    from sim.discrepancy.rig import rig_to_toml
+    from sim.discrepancy.synth import hidden_effect_log
+    from sim.logio import write_log
+
+    log, rig, _ = hidden_effect_log(experiment, [], seed=1, duration_s=3.0)
+    log_path, rig_path = directory / "bench.parquet", directory / "rig.toml"
+    write_log(log, log_path)
+    rig_path.write_text(rig_to_toml(rig))
+    return log_path, rig_path, len(log)
+
+
+def test_discrepancy_records_the_measured_testbed_log_and_residuals_without_replay(tmp_path, measured_locked):
+    """A testbed log with the plant's columns records as a run (3D testbed, torques, temperature) with its
+    angles and the residuals before/after, every sample; --no-replay: no replay series."""
+    from experiments import discrepancy
+
+    log_path, rig_path, n = measured_locked
+    path = tmp_path / "d.rrd"
+    discrepancy.main([str(log_path), "--rig", str(rig_path), "--workers", "1", "--no-replay", "--rerun", str(path)])
+    rows, static = read_back(path)
+    root = "/measured_bench"
+    for entity in ("torque/command", "torque/loadcell", "torque/sensor", "temperature/board", "position/lever",
+                   "position/motor", "residual_effort/baseline", "residual_sensor/extended"):
+        assert rows[f"{root}/{entity}"] == n, entity
+    assert rows[f"{root}/testbed/torque"] == n // 20 and f"{root}/testbed/loadcell/boxes" in static
+    assert not any("/replay" in e for e in rows)
+
+
+def test_discrepancy_records_the_replay_of_the_held_out_part(tmp_path, measured_locked):
+    """With the replay, the measured, baseline and extended load-cell torque of every held-out sample are
+    recorded under /<run>/replay, labelled in N·m."""
+    import json
+
+    from experiments import discrepancy
+
+    log_path, rig_path, _ = measured_locked
+    path, out = tmp_path / "r.rrd", tmp_path / "r.json"
+    discrepancy.main([str(log_path), "--rig", str(rig_path), "--workers", "1", "--json", str(out),
+                      "--rerun", str(path)])
+    held = json.loads(out.read_text())["baseline"]["split"]["held_out_samples"]
+    rows, _ = read_back(path)
+    assert [rows[f"/measured_bench/replay/{s}"] for s in ("measured", "baseline", "extended")] == [held] * 3
+    assert series_labels(path, "/measured_bench/replay/") == {"measured [N·m]", "baseline [N·m]", "extended [N·m]"}
+
+
+def test_discrepancy_records_a_slide_log_as_series_without_testbed(tmp_path):
+    """A rigid slide log has no testbed geometry: its force command and position are recorded as series
+    (with the residual), nothing under testbed/ or torque/."""
+    from experiments import discrepancy
+
+    log_path, rig_path, n = _measured("slide", tmp_path)
+    path = tmp_path / "s.rrd"
+    discrepancy.main([str(log_path), "--rig", str(rig_path), "--workers", "1", "--no-replay", "--rerun", str(path)])
+    rows, static = read_back(path)
+    assert rows["/measured_bench/effort/command"] == n and rows["/measured_bench/position/joint"] == n
+    assert rows["/measured_bench/residual_effort/baseline"] == n
+    assert series_labels(path, "/measured_bench/effort/") == {"command [N]"}
+    assert series_labels(path, "/measured_bench/position/") == {"joint [m]"}
+    assert not any("/testbed" in e or "/torque" in e for e in set(rows) | static)

@@ -20,7 +20,17 @@ from sim.discrepancy.selection import moved_enough
 from sim.discrepancy.signals import AnalysisConfig, prepare
 from sim.discrepancy.simulate import run_testbed
 from sim.discrepancy.simulate import testbed_plant as build_testbed_plant
-from sim.discrepancy.synth import TAU_SENSOR_NOISE_NM, hidden_effect_log
+from sim.discrepancy.synth import (
+    BASELINE_RANGES,
+    GRID_BEST_OVERRIDES,
+    LOAD_COEFFICIENT_DOWN,
+    LOAD_COEFFICIENT_UP,
+    TAU_SENSOR_NOISE_NM,
+    baseline_rig,
+    draw_effect,
+    hidden_effect_log,
+    random_baseline_overrides,
+)
 from sim.logio import write_log
 
 DURATION_S = 8.0  # short logs: 4.8 s fit, 3.2 s held out
@@ -33,16 +43,56 @@ def _relative_error(found: float, truth: float) -> float:
 
 
 def test_bristle_scan_matches_the_sequential_recursion():
-    """The block-wise bristle-state scan equals the plain sample-by-sample implicit Euler loop."""
+    """The block-wise bristle-state scan equals the plain sample-by-sample exact (exponential) update."""
     rng = np.random.default_rng(3)
     v = np.cumsum(rng.normal(0, 0.05, 3001))
     g = 0.09 + 0.04 * np.exp(-(v / 0.05) ** 2)
     dt, sigma0 = 1e-3, 2000.0
     z, expected = 0.0, np.empty_like(v)
     for k in range(len(v)):
-        z = (z + v[k] * dt) / (1.0 + sigma0 * abs(v[k]) * dt / g[k])
+        c = math.exp(-sigma0 * abs(v[k]) * dt / g[k])
+        z = c * z + (1.0 - c) * math.copysign(1.0, v[k]) * g[k] / sigma0
         expected[k] = z
     np.testing.assert_allclose(bristle_state(v, g, sigma0, dt), expected, rtol=1e-9, atol=1e-15)
+
+
+# Bristle state of the surrogate (driven by the logged motor angle at 1 kHz) against MuJoCo's (integrated at the
+# 62.5 µs physics step), free swing: σ0·z differs by 0.18 mN·m RMS after the 25 Hz filter with the exact update;
+# implicit Euler at 1 kHz lagged by 0.79 mN·m, most of the baseline effort residual, and was reported as a
+# Stribeck finding on baselines whose load-dependent friction band did not absorb it (measured, 10 s log).
+BRISTLE_MISMATCH_NM = 4e-4
+
+
+def test_surrogate_bristle_state_follows_mujoco():
+    """On the free swing, the surrogate's bristle torque σ0·z follows MuJoCo's dcmotor state within 0.4 mN·m (filtered
+    RMS), half of what the 1 kHz implicit Euler update it replaced lagged by."""
+    from scipy.signal import butter, sosfiltfilt
+
+    from sim.discrepancy import synth
+
+    rig = rig_from_dict({"model": "testbed", "fixture": "free"})
+    plant = build_testbed_plant(rig)
+    plant.reset()
+    fr, n_gear = rig.params.friction, rig.params.motor.gear_ratio
+    n = 6000
+    q_motor, z_mujoco = np.empty(n), np.empty(n)
+    q, qd = 0.0, 0.0
+    for k in range(n):
+        ref = sum(a * math.sin(2 * math.pi * f * k * 1e-3) for a, f in synth.FREE_SWING_RAD)
+        u = synth.FREE_KP_NM_PER_RAD * (ref - q) - synth.FREE_KD_NMS_PER_RAD * qd
+        plant.step(min(max(u, -synth.FREE_COMMAND_LIMIT_NM), synth.FREE_COMMAND_LIMIT_NM))
+        q_motor[k] = plant.motor_angle_rad
+        z_mujoco[k] = plant.data.act[plant._act_bristle] / n_gear  # motor-side deflection -> output-referred
+        q, qd = plant.output_angle_rad, plant.output_velocity_rad_s
+    v = np.empty(n)
+    v[1:] = np.diff(q_motor) / 1e-3
+    v[0] = v[1]
+    g = fr.coulomb_torque_nm + (fr.breakaway_torque_nm - fr.coulomb_torque_nm) * np.exp(
+        -(v / fr.stribeck_velocity_rad_s) ** 2)
+    sigma0 = fr.presliding_stiffness_nm_per_rad
+    error = sosfiltfilt(butter(4, 25.0, fs=1000.0, output="sos"), sigma0 * (bristle_state(v, g, sigma0, 1e-3) - z_mujoco))
+    assert np.sqrt(np.mean(error[100:-100] ** 2)) < BRISTLE_MISMATCH_NM
+    assert np.abs(sigma0 * z_mujoco).max() > 0.5 * fr.coulomb_torque_nm  # the swing reverses through sliding
 
 
 @pytest.mark.parametrize("experiment", ["locked", "free", "locked_pi_sensor"])
@@ -94,6 +144,81 @@ def test_no_hidden_effect_gives_no_finding(experiment):
     log, rig, _ = hidden_effect_log(experiment, [], seed=11, duration_s=DURATION_S)
     result = analyse(log, rig)
     assert result.findings == [] and result.verdict == "no significant discrepancy"
+
+
+# Baselines other than the defaults of sim.params: drawn from synth.BASELINE_RANGES (explicit seeds; the log's noise
+# seed is 1000 + the baseline's), and the parameter set identify_defaults prefers. The slow sweep draws 40.
+FAST_RANDOM_BASELINES = (0, 1, 2, 3, 4, 5)
+# Known open false positive (docs/discrepancy.md, Limits: load-dependent friction on the free swing): MuJoCo's gear
+# friction acts on the raw flexure torque's vibration, which the surrogate does not see; on baseline 4 (8 s log) a
+# 1.6 mN·m cogging term fitted to it wins 11 % held-out. Strict: the test reports when the cause is fixed.
+KNOWN_FALSE_POSITIVES = {(4, "free"): "cogging fitted to the load friction of the flexure vibration (open)"}
+
+
+def _random_baseline_cases():
+    for seed in FAST_RANDOM_BASELINES:
+        for fixture in ("locked", "free"):
+            why = KNOWN_FALSE_POSITIVES.get((seed, fixture))
+            marks = [pytest.mark.xfail(reason=why, strict=True)] if why else []
+            yield pytest.param(fixture, seed, marks=marks, id=f"{seed}-{fixture}")
+
+
+@pytest.mark.parametrize("fixture, baseline_seed", list(_random_baseline_cases()))
+def test_no_finding_on_random_baselines(fixture, baseline_seed):
+    """A log of a baseline drawn across the plausible parameter ranges, analysed against that same rig, gives no
+    finding: the surrogate represents the plant at other values than the defaults too."""
+    log, rig, _ = hidden_effect_log(fixture, [], seed=1000 + baseline_seed, duration_s=DURATION_S,
+                                    baseline=random_baseline_overrides(baseline_seed))
+    assert analyse(log, rig).found == []
+
+
+@pytest.mark.parametrize("fixture", ["locked", "free"])
+def test_no_finding_on_the_grid_best_baseline(fixture):
+    """The parameter set identify_defaults prefers (load-dependent friction 0.05, backlash 0.5 mrad) gives no finding
+    on its own logs (it gave a spurious Stribeck finding on the free swing before the bristle update was exact)."""
+    log, rig, _ = hidden_effect_log(fixture, [], seed=11, duration_s=DURATION_S, baseline=GRID_BEST_OVERRIDES)
+    assert analyse(log, rig).found == []
+
+
+def test_random_baselines_span_the_stated_ranges():
+    """Drawn baselines stay in synth.BASELINE_RANGES and form valid parameter sets (Coulomb below breakaway)."""
+    for seed in range(20):
+        over = random_baseline_overrides(seed)
+        rig = baseline_rig("free", over)
+        fr = rig.params.friction
+        low, high = BASELINE_RANGES[("friction", "coulomb_fraction_of_breakaway")]
+        assert low <= fr.coulomb_torque_nm / fr.breakaway_torque_nm <= high
+        for (group, name), (low, high) in BASELINE_RANGES.items():
+            if name in over.get(group, {}):
+                assert low <= getattr(getattr(rig.params, group), name) <= high
+
+
+def test_hidden_change_of_a_baseline_effect_is_relative_to_the_rig():
+    """A hidden load-dependent friction is the rig's own coefficient times a factor from the stated ranges, so it
+    is a real change on any baseline (an absolute draw of 0.03-0.06 sat on top of a 0.05 baseline)."""
+    rig = baseline_rig("locked", GRID_BEST_OVERRIDES)
+    base = rig.params.friction.load_friction_coefficient
+    for seed in range(40):
+        overrides, _ = draw_effect("load_dependent_friction", rig, np.random.default_rng(seed))
+        factor = overrides["load_coefficient"] / base
+        assert LOAD_COEFFICIENT_UP[0] <= factor <= LOAD_COEFFICIENT_UP[1] or \
+            LOAD_COEFFICIENT_DOWN[0] <= factor <= LOAD_COEFFICIENT_DOWN[1]
+
+
+@pytest.mark.parametrize("experiment, effect, key", [
+    ("free", "coulomb_friction", "coulomb"),
+    ("locked", "load_dependent_friction", "load_coefficient"),
+    ("locked", "backlash", "backlash_width"),
+])
+def test_hidden_effect_is_recovered_on_the_grid_best_baseline(experiment, effect, key):
+    """On the grid-best baseline, an effect hidden relative to it is the first finding, within 5 %, with a gain."""
+    log, rig, truth = hidden_effect_log(experiment, [effect], seed=5, duration_s=DURATION_S,
+                                        baseline=GRID_BEST_OVERRIDES)
+    result = analyse(log, rig)
+    assert result.found[:1] == [effect]
+    first = result.findings[0]
+    assert _relative_error(first.parameters[key]["value"], truth.effects[effect][key]) < RELATIVE_TOLERANCE
+    assert first.rmse_heldout_after < first.rmse_heldout_before and first.gain >= AnalysisConfig().min_relative_gain
 
 
 @pytest.mark.parametrize("experiment, effect, key", [

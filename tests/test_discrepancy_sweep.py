@@ -10,7 +10,13 @@ import math
 import pytest
 
 from sim.discrepancy.analysis import analyse
-from sim.discrepancy.synth import EXPERIMENTS, FINE_MOTOR_ENCODER_COUNTS, hidden_effect_log
+from sim.discrepancy.synth import (
+    EXPERIMENTS,
+    FINE_MOTOR_ENCODER_COUNTS,
+    GRID_BEST_OVERRIDES,
+    hidden_effect_log,
+    random_baseline_overrides,
+)
 
 SEEDS = (21, 22, 23)
 DURATION_S = 10.0
@@ -148,3 +154,68 @@ def test_two_hidden_effects_are_both_found(experiment, effects, seed):
     """Two effects hidden at once are both found."""
     log, rig, truth = hidden_effect_log(experiment, effects, seed, DURATION_S)
     assert set(effects) <= set(analyse(log, rig).found)
+
+
+# ------------------------------------------------------------------ baselines other than the defaults of sim.params
+# Random baselines drawn from synth.BASELINE_RANGES (breakaway, Coulomb/breakaway, Stribeck velocity, viscous,
+# load-dependent friction, torque saturation, backlash 0.5-3.5 mrad) with explicit seeds; the log's noise seed is
+# 1000 + the baseline's. Zero findings are required on every one.
+RANDOM_BASELINES = tuple(range(40))
+CLOSED_LOOP_RANDOM_BASELINES = tuple(range(10))
+
+
+# Known open false positive (docs/discrepancy.md, Limits: load-dependent friction on the free swing): MuJoCo's gear
+# friction acts on the raw flexure torque's vibration, which the surrogate does not see. Strict: reports the fix.
+KNOWN_FALSE_POSITIVES = {(30, "free"): "Stribeck curve fitted to the load friction of the flexure vibration (open)"}
+
+
+def _random_baseline_cases():
+    for seed in RANDOM_BASELINES:
+        for fixture in ("locked", "free"):
+            why = KNOWN_FALSE_POSITIVES.get((seed, fixture))
+            marks = [pytest.mark.xfail(reason=why, strict=True)] if why else []
+            yield pytest.param(fixture, seed, marks=marks, id=f"{fixture}-{seed}")
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("fixture, baseline_seed", list(_random_baseline_cases()))
+def test_no_false_positives_on_random_baselines(fixture, baseline_seed):
+    """Logs of a baseline drawn across the plausible ranges, analysed against that rig, give no finding."""
+    log, rig, _ = hidden_effect_log(fixture, [], 1000 + baseline_seed, DURATION_S,
+                                    baseline=random_baseline_overrides(baseline_seed))
+    assert analyse(log, rig).found == []
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("baseline_seed", CLOSED_LOOP_RANDOM_BASELINES)
+@pytest.mark.parametrize("experiment", ["locked_pi_sensor", "locked_pi_current"])
+def test_no_false_positives_on_random_baselines_in_closed_loop(experiment, baseline_seed):
+    """Both feedback modes of the torque loop, on random baselines, give no finding."""
+    log, rig, _ = hidden_effect_log(experiment, [], 1000 + baseline_seed, DURATION_S,
+                                    baseline=random_baseline_overrides(baseline_seed))
+    assert analyse(log, rig).found == []
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("seed", (31, 32, 33))
+@pytest.mark.parametrize("experiment", [e for e in EXPERIMENTS if e != "slide"])
+def test_no_false_positives_on_the_grid_best_baseline(experiment, seed):
+    """The parameter set identify_defaults prefers gives no finding on its own logs, in every testbed experiment."""
+    log, rig, _ = hidden_effect_log(experiment, [], seed, DURATION_S, baseline=GRID_BEST_OVERRIDES)
+    assert analyse(log, rig).found == []
+
+
+# non-default baselines of the recovery sweep: the grid-best set and two random draws
+RECOVERY_BASELINES = {"grid_best": GRID_BEST_OVERRIDES, "random_7": random_baseline_overrides(7),
+                      "random_19": random_baseline_overrides(19)}
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("baseline", list(RECOVERY_BASELINES))
+@pytest.mark.parametrize("effect", list(CASES))
+def test_every_effect_is_recovered_on_non_default_baselines(effect, baseline):
+    """Each library effect hidden alone on a non-default baseline (changed relative to that rig where the rig
+    carries it) is the first finding, with its parameters within the same tolerances as on the defaults."""
+    experiment, tolerances = CASES[effect]
+    log, rig, truth = hidden_effect_log(experiment, [effect], 21, DURATION_S, baseline=RECOVERY_BASELINES[baseline])
+    _check(analyse(log, rig), truth, effect, tolerances)

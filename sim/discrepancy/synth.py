@@ -64,42 +64,129 @@ BASELINE_SLIDE_RIG = {"model": "rigid-joint", "joint": "slide", "mass_kg": 2.0, 
                       "peak_effort": 100.0, "friction": {"coulomb": 3.0, "viscous": 8.0}}
 
 
-def baseline_rig(experiment: str) -> Rig:
-    """The baseline rig description of an experiment (default testbed parameters, or the slide stage)."""
+def baseline_rig(experiment: str, overrides: dict[str, dict[str, float]] | None = None) -> Rig:
+    """The baseline rig description of an experiment: the testbed (``sim.params`` defaults, or ``overrides`` in the
+    ``--params`` schema, e.g. ``{"friction": {"load_friction_coefficient": 0.05}}``), or the slide stage."""
     if experiment == "slide":
+        if overrides:
+            raise ValueError("overrides apply to the testbed's parameters, not the slide stage")
         return rig_from_dict(BASELINE_SLIDE_RIG, source="slide baseline")
     fixture = "free" if experiment == "free" else "locked"
-    return rig_from_dict({"model": "testbed", "fixture": fixture}, source=f"testbed {fixture} baseline")
+    return rig_from_dict({"model": "testbed", "fixture": fixture, **(overrides or {})},
+                         source=f"testbed {fixture} baseline")
 
 
-# Realistic ranges of each hidden effect, (low, high) per parameter, drawn with a random sign/direction where
-# listed. Values changed from the baseline are drawn away from it (at least the low bound of the change).
+# Plausible ranges of the testbed's baseline parameters that shape the analysed logs: a user's rig differs from
+# the defaults of sim.params, and the analysis must give no finding on a log of the rig it is told about
+# whatever its values (tests/test_discrepancy*.py draw baselines from these). (group, field): (low, high).
+BASELINE_RANGES: dict[tuple[str, str], tuple[float, float]] = {
+    # N·m: the paper's stiction threshold 0.13 N·m (Sec. V) of one unit, ±40 % for other units, greases, wear
+    ("friction", "breakaway_torque_nm"): (0.08, 0.18),
+    # [1] Coulomb/breakaway: 0.6 (a marked Stribeck drop) to 0.96 (almost none), the span of the grid of
+    # experiments/identify_defaults.py (0.09/0.13 = 0.7 and 0.125/0.13 = 0.96)
+    ("friction", "coulomb_fraction_of_breakaway"): (0.6, 0.96),
+    # rad/s: the assumed 0.05 rad/s of sim.params, halved to doubled
+    ("friction", "stribeck_velocity_rad_s"): (0.025, 0.1),
+    # N·m·s/rad: the assumed 0.02 N·m·s/rad of sim.params, halved to doubled
+    ("friction", "viscous_nms_per_rad"): (0.01, 0.04),
+    # [1] 1 - η of one planetary stage of catalogue efficiency 0.85-0.98 (identify_defaults: 0.03, 0.05;
+    # sim.params default 0.1)
+    ("friction", "load_friction_coefficient"): (0.02, 0.15),
+    # 1/(N·m): the whole valid range of sim.params; it acts only in controllers.motor_driver (closed-loop runs of
+    # experiments.*), not in sim.plant, so these open-loop/PI logs do not depend on it (drawn to show that)
+    ("motor", "torque_saturation_per_nm"): (0.0, 0.025),
+    # rad: 0.5 mrad (the grid-best of identify_defaults) to 3.5 mrad (sim.params default, 0.2°)
+    ("backlash", "width_rad"): (0.5e-3, 3.5e-3),
+}
+# the parameter set experiments/identify_defaults.py prefers against the paper's Tables VI-VII (sim.params,
+# BacklashParams.width_rad source); a baseline the analysis must handle as well as the defaults
+GRID_BEST_OVERRIDES: dict[str, dict[str, float]] = {
+    "friction": {"coulomb_torque_nm": 0.09, "load_friction_coefficient": 0.05},
+    "motor": {"torque_saturation_per_nm": 0.015}, "backlash": {"width_rad": 0.5e-3}}
+
+
+def random_baseline_overrides(seed: int) -> dict[str, dict[str, float]]:
+    """Testbed parameter overrides drawn uniformly from ``BASELINE_RANGES`` with ``seed`` (``--params`` schema)."""
+    rng = np.random.default_rng(seed)
+    drawn = {key: float(rng.uniform(low, high)) for key, (low, high) in BASELINE_RANGES.items()}
+    breakaway = drawn.pop(("friction", "breakaway_torque_nm"))
+    fraction = drawn.pop(("friction", "coulomb_fraction_of_breakaway"))
+    out: dict[str, dict[str, float]] = {"friction": {"breakaway_torque_nm": breakaway,
+                                                     "coulomb_torque_nm": fraction * breakaway}}
+    for (group, name), value in drawn.items():
+        out.setdefault(group, {})[name] = value
+    return out
+
+
+# Ranges of each hidden effect, (low, high) per parameter, drawn with a random sign/direction where listed.
+# An effect the baseline already carries (friction levels, viscous, load-dependent friction, presliding,
+# backlash, dead time) is changed *relative to the rig's own value*: a factor drawn away from 1 (up or down)
+# by at least the low bound, so that a hidden change is a real one on any baseline (docs/discrepancy.md,
+# "Synthetic logs"). The factors reproduce, on the default rig, the absolute ranges the sweep was tuned on.
+COULOMB_UP, COULOMB_DOWN = (1.244, 1.389), (0.5, 0.778)  # x F_c (0.112-0.125, 0.045-0.07 N·m at 0.09)
+COULOMB_BELOW_BREAKAWAY = 0.97  # a raised Coulomb level stays below 0.97 F_s (else it is drawn lower instead)
+VISCOUS_UP, VISCOUS_DOWN = (2.0, 3.0), (0.2, 0.4)  # x σ2
+BREAKAWAY_UP = (1.308, 1.923)  # x F_s (0.17-0.25 N·m at 0.13)
+STRIBECK_VELOCITY_SPAN = (0.4, 2.0)  # x v_s (0.02-0.1 rad/s at 0.05); F_s already changes by >= 31 %
+LOAD_COEFFICIENT_UP, LOAD_COEFFICIENT_DOWN = (1.5, 2.0), (0.3, 0.6)  # x μ (0.15-0.2, 0.03-0.06 at 0.1)
+LOAD_COEFFICIENT_IF_NONE = (0.05, 0.15)  # [1] absolute, for a baseline without load-dependent friction
+PRESLIDING_UP = (2.0, 4.0)  # x σ0, stiffer only (4000-8000 N·m/rad at 2000); see draw_effect
+BACKLASH_UP, BACKLASH_DOWN = (1.714, 2.857), (0.2857, 0.5714)  # x width (6-10, 1-2 mrad at 3.5 mrad)
+EXTRA_DELAY_S = (1.5e-3, 5.5e-3)  # [s] dead time added to the rig's (2-6 ms at the default 0.5 ms)
+
+
+def _factor(rng: np.random.Generator, up: bool, up_range: tuple[float, float],
+            down_range: tuple[float, float]) -> float:
+    return float(rng.uniform(*(up_range if up else down_range)))
+
+
 def draw_effect(name: str, rig: Rig, rng: np.random.Generator) -> tuple[dict[str, float], dict[str, float]]:
-    """A random hidden effect: (native parameter overrides by theta key, added-effect parameters)."""
+    """A random hidden effect: (native parameter overrides by theta key, added-effect parameters).
+
+    Parameters
+    ----------
+    name : str
+        An effect of the library (``sim.discrepancy.effects.EFFECTS``).
+    rig : Rig
+        The baseline rig; effects it already carries are changed relative to its values.
+    rng : numpy.random.Generator
+        The draw's random source.
+    """
     u = rng.uniform
     up = rng.random() < 0.5
     slide = rig.joint == "slide"
+    fr = None if slide else rig.params.friction
     if name == "coulomb_friction":
         if slide:  # MuJoCo's frictionloss is one level: static and sliding move together
             level = rig.rigid["coulomb"] * (u(1.3, 1.6) if up else u(0.5, 0.7))
             return {"coulomb": level, "breakaway": level}, {}
-        return {"coulomb": u(0.112, 0.125) if up else u(0.045, 0.07)}, {}  # baseline 0.09, below breakaway 0.13
+        factor = _factor(rng, up, COULOMB_UP, COULOMB_DOWN)
+        if fr.coulomb_torque_nm * factor > COULOMB_BELOW_BREAKAWAY * fr.breakaway_torque_nm:
+            factor = _factor(rng, False, COULOMB_UP, COULOMB_DOWN)  # no room below the breakaway level
+        return {"coulomb": fr.coulomb_torque_nm * factor}, {}
     if name == "viscous_friction":
-        base = rig.rigid["viscous"] if slide else rig.params.friction.viscous_nms_per_rad
-        return {"viscous": base * (u(2.0, 3.0) if up else u(0.2, 0.4))}, {}
+        base = rig.rigid["viscous"] if slide else fr.viscous_nms_per_rad
+        return {"viscous": base * _factor(rng, up, VISCOUS_UP, VISCOUS_DOWN)}, {}
     if name == "stribeck_friction":
-        return {"breakaway": u(0.17, 0.25), "stribeck_velocity": u(0.02, 0.1)}, {}
+        if slide:
+            raise ValueError("stribeck_friction cannot be hidden in a rigid joint (MuJoCo has no Stribeck curve "
+                             "on a plain joint)")
+        return {"breakaway": fr.breakaway_torque_nm * u(*BREAKAWAY_UP),
+                "stribeck_velocity": fr.stribeck_velocity_rad_s * u(*STRIBECK_VELOCITY_SPAN)}, {}
     if name == "asymmetric_friction":
         scale = 1.0 if not slide else 10.0
         return {}, {"asymmetry": scale * u(0.03, 0.06) * (1 if up else -1)}
     if name == "load_dependent_friction":
-        return {"load_coefficient": u(0.15, 0.2) if up else u(0.03, 0.06)}, {}
+        if fr.load_friction_coefficient == 0.0:
+            return {"load_coefficient": u(*LOAD_COEFFICIENT_IF_NONE)}, {}
+        return {"load_coefficient": fr.load_friction_coefficient
+                * _factor(rng, up, LOAD_COEFFICIENT_UP, LOAD_COEFFICIENT_DOWN)}, {}
     if name == "presliding_friction":
         # stiffer only: below the baseline the step rule lengthens the physics step past half the backlash stop's
         # tuned time constant, and the plant refuses the parameter set
-        return {"presliding_stiffness": u(4000.0, 8000.0)}, {}
+        return {"presliding_stiffness": fr.presliding_stiffness_nm_per_rad * u(*PRESLIDING_UP)}, {}
     if name == "backlash":
-        return {"backlash_width": u(6e-3, 1e-2) if up else u(1e-3, 2e-3)}, {}
+        return {"backlash_width": rig.params.backlash.width_rad * _factor(rng, up, BACKLASH_UP, BACKLASH_DOWN)}, {}
     if name == "cogging":
         if slide:
             return {}, {"cogging_amplitude": u(1.0, 2.0), "cogging_period": u(0.02, 0.04),
@@ -110,7 +197,8 @@ def draw_effect(name: str, rig: Rig, rng: np.random.Generator) -> tuple[dict[str
     if name == "torque_constant_nonlinearity":
         return {}, {"torque_rolloff": u(0.05, 0.15)}
     if name == "transport_delay":
-        return {"delay": u(2e-3, 6e-3)}, {}
+        base = rig.rigid.get("delay", 0.0) if slide else rig.params.motor.command_delay_s
+        return {"delay": base + u(*EXTRA_DELAY_S)}, {}
     if name == "gravity":
         if slide:
             return {}, {"gravity_amplitude": u(3.0, 6.0) * (1 if up else -1), "gravity_angle": 0.0}
@@ -254,16 +342,30 @@ def synth_log(experiment: str, truth: Rig, duration_s: float, seed: int, *,
 
 
 def hidden_effect_log(experiment: str, effects: list[str], seed: int, duration_s: float, *,
-                      motor_encoder_counts: int | None = MOTOR_ENCODER_COUNTS) -> tuple[RunLog, Rig, HiddenTruth]:
+                      motor_encoder_counts: int | None = MOTOR_ENCODER_COUNTS,
+                      baseline: dict[str, dict[str, float]] | None = None) -> tuple[RunLog, Rig, HiddenTruth]:
     """A log with ``effects`` hidden at random values (drawn from ``seed``), the baseline rig, and the truth.
 
-    ``motor_encoder_counts``: counts per motor turn of the log's motor encoder, None for an ideal one (see
-    :func:`synth_log`). The analysis is not told: it reads the resolution from the log (smallest step of
-    ``q_motor``).
+    Parameters
+    ----------
+    experiment : str
+        One of ``EXPERIMENTS``.
+    effects : list of str
+        Effects to hide (none: a log of the baseline itself).
+    seed : int
+        Seed of the effects' values and of the sensor noise.
+    duration_s : float
+        Log length [s].
+    motor_encoder_counts : int or None
+        Counts per motor turn of the log's motor encoder, None for an ideal one (see :func:`synth_log`). The
+        analysis is not told: it reads the resolution from the log (smallest step of ``q_motor``).
+    baseline : dict, optional
+        Testbed parameter overrides of the baseline rig (``--params`` schema; default: the ``sim.params``
+        defaults); hidden effects the baseline carries are changed relative to its values.
     """
-    baseline = baseline_rig(experiment)
+    rig = baseline_rig(experiment, baseline)
     rng = np.random.default_rng(seed)
-    drawn = {name: draw_effect(name, baseline, rng) for name in effects}
-    truth = truth_rig(baseline, drawn)
+    drawn = {name: draw_effect(name, rig, rng) for name in effects}
+    truth = truth_rig(rig, drawn)
     log = synth_log(experiment, truth.rig, duration_s, seed, motor_encoder_counts=motor_encoder_counts)
-    return log, baseline, truth
+    return log, rig, truth

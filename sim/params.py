@@ -60,10 +60,10 @@ class MotorParams:
         5.0e-4, "s", "assumed: CAN-FD transfer and driver processing of one torque command; the paper "
         "gives none", 0.0, 0.05)
     torque_saturation_per_nm: float = quantity(
-        0.01, "1/(N·m)", "tuned: identified against the paper's Tables VI-VII by experiments/identify_defaults.py "
-        "(the 10 N·m sine sets it). Torque per ampere falls as β·|τ| by magnetic saturation, τ = τ_cmd·(1 - β·|τ_cmd|), while the driver's estimate "
-        "assumes the nominal K_t (paper Sec. V-A: the current-based estimate 'exhibits nonlinearity'); 0.01 "
-        "is 10 % at 10 N·m, 18 % at the 18 N·m peak. Applied by controllers.motor_driver in the closed-loop "
+        0.015, "1/(N·m)", "tuned: identified against the paper's Tables VI-VII by experiments/identify_defaults.py "
+        "(grid 0.012/0.015; the 10 N·m sine sets it). Torque per ampere falls as β·|τ| by magnetic saturation, "
+        "τ = τ_cmd·(1 - β·|τ_cmd|), while the driver's estimate assumes the nominal K_t (paper Sec. V-A: the "
+        "current-based estimate 'exhibits nonlinearity'); 0.015 is 15 % at 10 N·m, 27 % at the 18 N·m peak. Applied by controllers.motor_driver in the closed-loop "
         "runs (not yet by sim.plant)", 0.0, 0.025)
 
 
@@ -82,6 +82,12 @@ class GearFrictionParams:
         low_open=True)
     viscous_nms_per_rad: float = quantity(
         0.02, "N·m·s/rad", "assumed: output-side viscous friction of grease and bearings", 0.0, INF)
+    output_viscous_share: float = quantity(
+        0.1, "1", "assumed: share of viscous_nms_per_rad that acts on the output flange and sensor hub (the "
+        "output bearing and its seal, against the housing) rather than in the gear, i.e. on the output side of "
+        "the backlash dead band. The total drag with the teeth in contact is unchanged; without a share the "
+        "free output floats undamped inside the gap and a torque step sets it rattling between the stops for "
+        "seconds (tests/test_plant_physics creep test with a 0.5 mrad gap)", 0.0, 1.0)
     presliding_stiffness_nm_per_rad: float = quantity(
         2000.0, "N·m/rad", "assumed: LuGre bristle stiffness sigma0 at the output; presliding "
         "displacement breakaway/sigma0 = 65 µrad (~0.65 µm at a 10 mm gear pitch radius)", 0.0, INF,
@@ -90,8 +96,9 @@ class GearFrictionParams:
         1.0, "1", "assumed: critically damped presliding, sigma1 = 2·ζ·sqrt(sigma0·J_reflected) (Canudas de "
         "Wit et al. 1995 size sigma1 from sigma0 and the moving mass)", 0.0, 10.0, low_open=True)
     load_friction_coefficient: float = quantity(
-        0.1, "1", "assumed: friction added per unit transmitted torque, 1 - η for a single planetary stage "
-        "of efficiency η ≈ 0.9; MuJoCo has no load-dependent friction, so sim.plant sets the gear joint's "
+        0.05, "1", "tuned: friction added per unit transmitted torque, 1 - η for a single planetary stage of "
+        "catalogue efficiency η = 0.95 (grid 0.03/0.05 of experiments/identify_defaults.py against Tables VI-VII; "
+        "0.1-0.2 made the gear stick at the crests of the 10 N·m sine and doubled its sensor-feedback error); MuJoCo has no load-dependent friction, so sim.plant sets the gear joint's "
         "frictionloss to this x |flexure torque| every tick", 0.0, 1.0)
     load_friction_time_constant_s: float = quantity(
         1.25e-4, "s", "tuned: solreffriction time constant of that frictionloss row, two physics steps (the "
@@ -107,12 +114,12 @@ class BacklashParams:
     """Dead band between gear output and the sensor hub: MuJoCo's hinge with limited range."""
 
     width_rad: float = quantity(
-        3.5e-3, "rad", "assumed: 0.2° total dead band, typical of low-cost single-stage planetary "
-        "actuators; the paper reports backlash but no value (Sec. V). The grid of "
-        "experiments/identify_defaults.py prefers 0.5 mrad with load_friction_coefficient 0.05 and "
-        "torque_saturation_per_nm 0.015 (Tables VI-VII: RMS |ln ratio| 0.43 against 0.89, 14 of 20 within 1.5x "
-        "against 13); not adopted yet: in a 0.5 mrad gap the free fixture's hub rattles, and the discrepancy "
-        "analysis (calibrated on these values) then finds spurious friction effects on baseline logs", 0.0, 0.2, low_open=True)
+        5.0e-4, "rad", "tuned: 0.03° total dead band, a tight planetary stage; the paper reports backlash but "
+        "no value (Sec. V). experiments/identify_defaults.py (grid 0.5/1.0 mrad, a first pass also 3.5 mrad = "
+        "0.2°) prefers it with load_friction_coefficient 0.05 and torque_saturation_per_nm 0.015: Tables "
+        "VI-VII RMS |ln ratio| 0.43 against 0.89 at 3.5 mrad; the impacts of crossing a wide dead band under "
+        "sensor feedback make peak errors of 0.5 N·m where the paper has 0.03-0.08 N·m", 0.0, 0.2,
+        low_open=True)
     stop_time_constant_s: float = quantity(
         1.25e-4, "s", "tuned: solref time constant of the stops, two physics steps (the stiffest MuJoCo "
         "resolves stably); with stop_impedance the stop penetrates < 10 % of the gap at 18 N·m and < 60 % "

@@ -111,6 +111,12 @@ def build_xml(p: TestbedParams, fixture: str) -> str:
       <joint joint="backlash" coef="1"/>
       <joint joint="flexure" coef="1"/>
     </fixed>
+    <!-- Absolute angle of the output flange and hub; its damping is the output bearing's share of the
+         viscous drag (friction.output_viscous_share), the rest acts in the gear (the dcmotor's damping). -->
+    <fixed name="output_angle" damping="{_f(fr.output_viscous_share * fr.viscous_nms_per_rad)}">
+      <joint joint="motor" coef="1"/>
+      <joint joint="backlash" coef="1"/>
+    </fixed>
   </tendon>
   <actuator>
     <!-- GIM8108 torque-commanded through its driver: input ff = motor-side torque [N·m]. LuGre values are
@@ -121,7 +127,7 @@ def build_xml(p: TestbedParams, fixture: str) -> str:
              inductance="0 {_f(p.motor.current_loop_time_constant_s)}"
              saturation="{_f(d.motor_peak_torque_motor_side_nm)} 0 0"
              ctrlrange="{_f(-d.motor_peak_torque_motor_side_nm)} {_f(d.motor_peak_torque_motor_side_nm)}"
-             damping="{_f(fr.viscous_nms_per_rad / n**2)}"
+             damping="{_f((1.0 - fr.output_viscous_share) * fr.viscous_nms_per_rad / n**2)}"
              lugre="{_f(fr.presliding_stiffness_nm_per_rad / n**2)} {_f(d.presliding_damping_nms_per_rad / n**2)} {_f(fr.coulomb_torque_nm / n)} {_f(fr.breakaway_torque_nm / n)} {_f(fr.stribeck_velocity_rad_s * n)}"
              {delay}/>
     <!-- External torque on the lever [N·m]: disturbances and the scripted hand. -->

@@ -4,7 +4,8 @@ across two cores, and the cost of recording a run to rerun.
     python -m benchmarks.bench_env [--steps 4000] [--repeats 3] [--record-s 5]
 
 Prints env steps per second of ``torquebed/TorqueTracking-v0`` through ``gymnasium.make`` (its wrappers
-included, like the peer's), with the breakdown of one step (``Plant.step`` alone; plus the sensor readout),
+included, like the peer's), with the breakdown of one step (``Plant.step`` alone; plus the sensor readout;
+per tick in µs: physics, the Python around it in ``Plant.step``, the sensor read, environment and wrappers),
 ``AsyncVectorEnv`` and ``SyncVectorEnv`` with 2 environments (total env steps per second), the peer's
 ``env.step`` rate, and the slow-down of a closed-loop run (``run_torque_loop``, sensor feedback) by writing
 its rerun recording (``sim.recording.record_logs`` to an .rrd).
@@ -13,15 +14,18 @@ its rerun recording (``sim.recording.record_logs`` to an .rrd).
 from __future__ import annotations
 
 import argparse
+import contextlib
 import os
 import tempfile
 import time
 from pathlib import Path
 
 import gymnasium as gym
+import mujoco
 import numpy as np
 
 import sim  # noqa: F401  (registers the environment)
+import sim.plant
 from benchmarks.bench_plant import PEER_ENV, best_rate, peer_rate
 from controllers.feedback import make_feedback
 from controllers.loop import run_torque_loop
@@ -65,6 +69,59 @@ def breakdown_rates(steps: int, repeats: int) -> dict[str, float]:
             plant.step(ACTION_NM)
 
     return {"plant": best_rate(plant_only, steps, repeats), "plant+sensor": best_rate(with_sensor, steps, repeats)}
+
+
+class _NoPhysics:
+    """Stands in for the ``mujoco`` module inside :mod:`sim.plant`: ``mj_step`` only advances the clock."""
+
+    def __getattr__(self, name):
+        return getattr(mujoco, name)
+
+    @staticmethod
+    def mj_step(model, data, nstep=1) -> None:
+        data.time += nstep * model.opt.timestep
+
+
+@contextlib.contextmanager
+def _no_physics():
+    """``Plant.step`` without its physics (the Python around ``mj_step`` only), within the block."""
+    sim.plant.mujoco = _NoPhysics()
+    try:
+        yield
+    finally:
+        sim.plant.mujoco = mujoco
+
+
+def tick_breakdown_us(steps: int, repeats: int) -> dict[str, float]:
+    """Per-tick µs of the parts of one env step (best of repeats each): the Python of ``Plant.step`` (its
+    ``mj_step`` stubbed), the sensor read, and the environment with its wrappers (an env step with the
+    physics stubbed, minus those two). The physics is the env step's time minus all three."""
+    p = TestbedParams()
+    plant = Plant(p, "locked")
+    sensor = make_feedback("sensor", p, 0)
+    env = gym.make(ENV_ID, episode_duration_s=(steps * repeats + 1) * p.simulation.control_period_s)
+    action = np.full(1, ACTION_NM, np.float32)
+    us = 1e6 / steps
+
+    def plant_steps() -> None:
+        for _ in range(steps):
+            plant.step(ACTION_NM)
+
+    def sensor_reads() -> None:
+        for _ in range(steps):
+            sensor.read(plant)
+
+    def env_steps() -> None:  # one episode across the repeats: no reset timed
+        for _ in range(steps):
+            env.step(action)
+
+    plant.step(ACTION_NM)
+    env.reset(seed=0)
+    sensor_us = us / best_rate(sensor_reads, 1, repeats)
+    with _no_physics():
+        plant_us = us / best_rate(plant_steps, 1, repeats)
+        env_us = us / best_rate(env_steps, 1, repeats)
+    return {"plant_python": plant_us, "sensor": sensor_us, "env": env_us - plant_us - sensor_us}
 
 
 def vector_rate(cls, n_envs: int, steps: int, repeats: int, **kwargs) -> float:
@@ -115,6 +172,7 @@ def main(argv: list[str] | None = None) -> None:
     factory_calibration(TestbedParams())  # once, before timing (and inherited by the forked workers)
     single = env_rate(args.steps, args.repeats)
     parts = breakdown_rates(args.steps, args.repeats)
+    tick = tick_breakdown_us(args.steps, args.repeats)
     peer = peer_rate(args.steps, args.repeats)
     async2 = vector_rate(gym.vector.AsyncVectorEnv, 2, args.steps, args.repeats, context="fork")
     sync2 = vector_rate(gym.vector.SyncVectorEnv, 2, args.steps, args.repeats)
@@ -125,6 +183,9 @@ def main(argv: list[str] | None = None) -> None:
     print(f"  single env (gymnasium.make)         {single:9.0f} steps/s")
     print(f"    Plant.step alone                  {parts['plant']:9.0f} ticks/s")
     print(f"    Plant.step + sensor readout       {parts['plant+sensor']:9.0f} ticks/s")
+    physics_us = 1e6 / single - tick["plant_python"] - tick["sensor"] - tick["env"]
+    print(f"    per env step: physics {physics_us:.1f} µs, Plant.step Python {tick['plant_python']:.1f} µs, "
+          f"sensor read {tick['sensor']:.1f} µs, env + wrappers {tick['env']:.1f} µs")
     print(f"  AsyncVectorEnv, 2 envs (2 cores)    {async2:9.0f} env steps/s ({async2 / single:.2f}x single)")
     print(f"  SyncVectorEnv, 2 envs               {sync2:9.0f} env steps/s")
     print(f"  {PEER_ENV} env.step       {peer:9.0f} steps/s")

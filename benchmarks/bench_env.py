@@ -1,27 +1,34 @@
 """Speed of the Gymnasium environment against Gymnasium's InvertedPendulum-v5 in the same process, vectorised
 across two cores, and the cost of recording a run to rerun.
 
-    python -m benchmarks.bench_env [--steps 4000] [--repeats 3] [--record-s 5]
+    python -m benchmarks.bench_env [--steps 4000] [--repeats 3] [--record-s 5] [--cpu-time]
 
 Prints env steps per second of ``torquebed/TorqueTracking-v0`` through ``gymnasium.make`` (its wrappers
-included, like the peer's), with the breakdown of one step (``Plant.step`` alone; plus the sensor readout),
+included, like the peer's), with the breakdown of one step (``Plant.step`` alone; plus the sensor readout;
+per tick in µs: physics, the Python around it in ``Plant.step``, the sensor read, environment and wrappers),
 ``AsyncVectorEnv`` and ``SyncVectorEnv`` with 2 environments (total env steps per second), the peer's
 ``env.step`` rate, and the slow-down of a closed-loop run (``run_torque_loop``, sensor feedback) by writing
-its rerun recording (``sim.recording.record_logs`` to an .rrd).
+its rerun recording (``sim.recording.record_logs`` to an .rrd). ``--cpu-time`` times the in-process
+measurements by this process's CPU time instead of wall time (steadier on a loaded shared machine; the
+AsyncVectorEnv, whose work is in its workers, is then not measured).
 """
 
 from __future__ import annotations
 
 import argparse
+import contextlib
+import math
 import os
 import tempfile
 import time
 from pathlib import Path
 
 import gymnasium as gym
+import mujoco
 import numpy as np
 
 import sim  # noqa: F401  (registers the environment)
+import sim.plant
 from benchmarks.bench_plant import PEER_ENV, best_rate, peer_rate
 from controllers.feedback import make_feedback
 from controllers.loop import run_torque_loop
@@ -34,7 +41,7 @@ from sim.plant import Plant
 ACTION_NM = 0.3  # [N·m] a constant command: the rig loaded, the gear stuck or creeping
 
 
-def env_rate(steps: int, repeats: int) -> float:
+def env_rate(steps: int, repeats: int, clock=time.perf_counter) -> float:
     env = gym.make(ENV_ID)
     env.reset(seed=0)
     action = np.full(1, ACTION_NM, np.float32)
@@ -45,10 +52,10 @@ def env_rate(steps: int, repeats: int) -> float:
             if terminated or truncated:
                 env.reset()
 
-    return best_rate(run, steps, repeats)
+    return best_rate(run, steps, repeats, clock)
 
 
-def breakdown_rates(steps: int, repeats: int) -> dict[str, float]:
+def breakdown_rates(steps: int, repeats: int, clock=time.perf_counter) -> dict[str, float]:
     p = TestbedParams()
     plant = Plant(p, "locked")
     sensor = make_feedback("sensor", p, 0)
@@ -64,10 +71,64 @@ def breakdown_rates(steps: int, repeats: int) -> dict[str, float]:
             sensor.read(plant)
             plant.step(ACTION_NM)
 
-    return {"plant": best_rate(plant_only, steps, repeats), "plant+sensor": best_rate(with_sensor, steps, repeats)}
+    return {"plant": best_rate(plant_only, steps, repeats, clock),
+            "plant+sensor": best_rate(with_sensor, steps, repeats, clock)}
 
 
-def vector_rate(cls, n_envs: int, steps: int, repeats: int, **kwargs) -> float:
+class _NoPhysics:
+    """Stands in for the ``mujoco`` module inside :mod:`sim.plant`: ``mj_step`` only advances the clock."""
+
+    def __getattr__(self, name):
+        return getattr(mujoco, name)
+
+    @staticmethod
+    def mj_step(model, data, nstep=1) -> None:
+        data.time += nstep * model.opt.timestep
+
+
+@contextlib.contextmanager
+def _no_physics():
+    """``Plant.step`` without its physics (the Python around ``mj_step`` only), within the block."""
+    sim.plant.mujoco = _NoPhysics()
+    try:
+        yield
+    finally:
+        sim.plant.mujoco = mujoco
+
+
+def tick_breakdown_us(steps: int, repeats: int, clock=time.perf_counter) -> dict[str, float]:
+    """Per-tick µs of the parts of one env step (best of repeats each): the Python of ``Plant.step`` (its
+    ``mj_step`` stubbed), the sensor read, and the environment with its wrappers (an env step with the
+    physics stubbed, minus those two). The physics is the env step's time minus all three."""
+    p = TestbedParams()
+    plant = Plant(p, "locked")
+    sensor = make_feedback("sensor", p, 0)
+    env = gym.make(ENV_ID, episode_duration_s=(steps * repeats + 1) * p.simulation.control_period_s)
+    action = np.full(1, ACTION_NM, np.float32)
+    us = 1e6 / steps
+
+    def plant_steps() -> None:
+        for _ in range(steps):
+            plant.step(ACTION_NM)
+
+    def sensor_reads() -> None:
+        for _ in range(steps):
+            sensor.read(plant)
+
+    def env_steps() -> None:  # one episode across the repeats: no reset timed
+        for _ in range(steps):
+            env.step(action)
+
+    plant.step(ACTION_NM)
+    env.reset(seed=0)
+    sensor_us = us / best_rate(sensor_reads, 1, repeats, clock)
+    with _no_physics():
+        plant_us = us / best_rate(plant_steps, 1, repeats, clock)
+        env_us = us / best_rate(env_steps, 1, repeats, clock)
+    return {"plant_python": plant_us, "sensor": sensor_us, "env": env_us - plant_us - sensor_us}
+
+
+def vector_rate(cls, n_envs: int, steps: int, repeats: int, clock=time.perf_counter, **kwargs) -> float:
     """Total env steps per second of ``n_envs`` environments in a vector env (autoreset on truncation)."""
     vec = cls([lambda: gym.make(ENV_ID) for _ in range(n_envs)], **kwargs)
     try:
@@ -79,7 +140,7 @@ def vector_rate(cls, n_envs: int, steps: int, repeats: int, **kwargs) -> float:
             for _ in range(per_env):
                 vec.step(action)
 
-        return best_rate(run, per_env * n_envs, repeats)
+        return best_rate(run, per_env * n_envs, repeats, clock)
     finally:
         vec.close()
 
@@ -111,24 +172,36 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--steps", type=int, default=4000, help="env steps per measurement (default 4000)")
     parser.add_argument("--repeats", type=int, default=3)
     parser.add_argument("--record-s", type=float, default=5.0, help="simulated seconds of the recorded run")
+    parser.add_argument("--cpu-time", action="store_true",
+                        help="time by this process's CPU time, not wall time (skips the AsyncVectorEnv)")
     args = parser.parse_args(argv)
+    clock = time.process_time if args.cpu_time else time.perf_counter
     factory_calibration(TestbedParams())  # once, before timing (and inherited by the forked workers)
-    single = env_rate(args.steps, args.repeats)
-    parts = breakdown_rates(args.steps, args.repeats)
-    peer = peer_rate(args.steps, args.repeats)
-    async2 = vector_rate(gym.vector.AsyncVectorEnv, 2, args.steps, args.repeats, context="fork")
-    sync2 = vector_rate(gym.vector.SyncVectorEnv, 2, args.steps, args.repeats)
+    single = env_rate(args.steps, args.repeats, clock)
+    parts = breakdown_rates(args.steps, args.repeats, clock)
+    tick = tick_breakdown_us(args.steps, args.repeats, clock)
+    peer = peer_rate(args.steps, args.repeats, clock)
+    async2 = (math.nan if args.cpu_time else
+              vector_rate(gym.vector.AsyncVectorEnv, 2, args.steps, args.repeats, context="fork"))
+    sync2 = vector_rate(gym.vector.SyncVectorEnv, 2, args.steps, args.repeats, clock)
     rec = recording_overhead(args.record_s, args.repeats)
     load = ", ".join(f"{x:.1f}" for x in os.getloadavg())
-    print(f"{ENV_ID}, locked fixture, constant {ACTION_NM} N·m command, best of {args.repeats} "
-          f"({os.cpu_count()} CPUs, load average {load})")
+    print(f"{ENV_ID}, locked fixture, constant {ACTION_NM} N·m command, best of {args.repeats}, "
+          f"{'CPU' if args.cpu_time else 'wall'} time ({os.cpu_count()} CPUs, load average {load})")
     print(f"  single env (gymnasium.make)         {single:9.0f} steps/s")
     print(f"    Plant.step alone                  {parts['plant']:9.0f} ticks/s")
     print(f"    Plant.step + sensor readout       {parts['plant+sensor']:9.0f} ticks/s")
-    print(f"  AsyncVectorEnv, 2 envs (2 cores)    {async2:9.0f} env steps/s ({async2 / single:.2f}x single)")
+    physics_us = 1e6 / single - tick["plant_python"] - tick["sensor"] - tick["env"]
+    print(f"    per env step: physics {physics_us:.1f} µs, Plant.step Python {tick['plant_python']:.1f} µs, "
+          f"sensor read {tick['sensor']:.1f} µs, env + wrappers {tick['env']:.1f} µs")
+    if args.cpu_time:
+        print("  AsyncVectorEnv, 2 envs (2 cores)    not measured (its workers' CPU time is not this process's)")
+    else:
+        print(f"  AsyncVectorEnv, 2 envs (2 cores)    {async2:9.0f} env steps/s ({async2 / single:.2f}x single)")
     print(f"  SyncVectorEnv, 2 envs               {sync2:9.0f} env steps/s")
     print(f"  {PEER_ENV} env.step       {peer:9.0f} steps/s")
-    print(f"  ratio to peer: single {single / peer:.2f}x, async 2 envs {async2 / peer:.2f}x")
+    async_ratio = "" if args.cpu_time else f", async 2 envs {async2 / peer:.2f}x"
+    print(f"  ratio to peer: single {single / peer:.2f}x{async_ratio}")
     print(f"rerun recording of a {rec['ticks'] / 1000:g} s closed-loop run (sensor feedback, 50 Hz 3D pose):")
     print(f"  run {rec['run_s']:.2f} s, recording {rec['record_s']:.3f} s ({rec['rrd_bytes'] / 1e6:.1f} MB): "
           f"slow-down {rec['record_s'] / rec['run_s']:.1%} (target < 30 %)")

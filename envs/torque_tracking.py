@@ -164,11 +164,11 @@ class TorqueTrackingEnv(gym.Env):
             photoreflector={"noise_min_v": 0.0, "noise_max_v": 0.0})
         self._sensor = make_feedback("sensor", sensor_params, int(rng.integers(2**31)), self._calibration)
         self._current = make_feedback("current", self.params)
-        self._loadcell_rng = np.random.default_rng(int(rng.integers(2**63)))
-        self._loadcell_noise_nm = LOADCELL_READING_NOISE_N * self.params.lever.length_m if self.feedback_noise else 0.0
+        self._loadcell_noise = self._draw_loadcell_noise(np.random.default_rng(int(rng.integers(2**63))))
         self._delivered = CurrentToTorqueMap.from_params(self.params).delivered_nm
         self._peak = self.params.motor.peak_torque_nm
         self._scale = self.reference.scale_nm
+        self._reference_nm = self.reference.values_nm.tolist()  # Python floats: cheaper to index per step
         self.plant.reset(backlash_side=self.reference.first_sign)
         self._k = 0
         self._observe()
@@ -178,20 +178,20 @@ class TorqueTrackingEnv(gym.Env):
     def step(self, action):
         if self.reference is None:
             raise RuntimeError("call reset() before step()")
-        command = min(max(float(np.asarray(action, dtype=float).reshape(-1)[0]), -self._peak), self._peak)
-        ref = self.reference.values_nm[self._k]
+        command = min(max(self._action_value(action), -self._peak), self._peak)
+        ref = self._reference_nm[self._k]
         plant = self.plant
         try:
             plant.step(self._delivered(command))
         except SimulationDiverged as exc:
             return self._obs.copy(), 0.0, True, False, {"diverged": True, "message": str(exc)}
-        self._k += 1
         if self.fixture == "locked":
             output = plant.loadcell_torque_nm
-            if self._loadcell_noise_nm:
-                output += self._loadcell_rng.normal(0.0, self._loadcell_noise_nm)
+            if self._loadcell_noise is not None:
+                output += self._loadcell_noise[self._k]
         else:
             output = plant.flexure_torque_nm
+        self._k += 1
         error = output - ref
         u = command / self._peak
         reward = -(error / self._scale) ** 2 - self.ctrl_cost_weight * u * u
@@ -202,9 +202,27 @@ class TorqueTrackingEnv(gym.Env):
         return self._obs.copy(), float(reward), False, truncated, info
 
     # ------------------------------------------------------------------ helpers
+    @staticmethod
+    def _action_value(action) -> float:
+        """The commanded torque [N·m] of an action (its first element, as a Python float)."""
+        if type(action) is np.ndarray and action.dtype.kind == "f":  # the usual case, without a conversion
+            return float(action.item(0))
+        return float(np.asarray(action, dtype=float).reshape(-1)[0])
+
+    def _draw_loadcell_noise(self, rng: np.random.Generator) -> list[float] | None:
+        """The load cell's reading noise of every step of the episode [N·m] (None when it has none).
+
+        Drawn at reset in one call (``Generator.normal`` with a size draws the values the per-step calls would,
+        in the same order; a step cannot be taken past the episode's end) instead of one call per step.
+        """
+        sigma_nm = LOADCELL_READING_NOISE_N * self.params.lever.length_m if self.feedback_noise else 0.0
+        if self.fixture != "locked" or not sigma_nm:
+            return None
+        return rng.normal(0.0, sigma_nm, self.n_steps).tolist()
+
     def _observe(self) -> None:
         plant, obs = self.plant, self._obs
-        obs[0] = self.reference.values_nm[min(self._k, self.n_steps - 1)]  # last one held at the end
+        obs[0] = self._reference_nm[min(self._k, self.n_steps - 1)]  # last one held at the end
         obs[1] = self._sensor.read(plant)
         obs[2] = plant.motor_angle_rad
         obs[3] = plant.motor_velocity_rad_s

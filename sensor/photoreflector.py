@@ -134,14 +134,39 @@ class PhotoReflectorArray:
         self._alpha = math.exp(-2.0 * math.pi * pr.bandwidth_hz * self.sample_period_s)
         self._lsb_v = pr.adc_reference_v / (2**pr.adc_bits - 1)
         self._half_widths = slip_half_widths(pr.slip_twist_max_rad)
-        # constants of the per-tick path (read_sample)
+        self._noise = NormalStream(self._rng)
+        self._init_sample_path()
+        # State carried from sample to sample, as lists of Python floats (read() converts at its ends).
+        self._gain_temperature_c, self._gain = math.nan, [1.0] * CHANNELS
+        self._slip_state = [0.0] * SLIP_ELEMENTS
+        self._filter_state: list[float] | None = None
+
+    def _init_sample_path(self) -> None:
+        """Constants of the per-tick path (read_sample) as Python floats, per channel.
+
+        Chosen for speed: for eight channels a loop over Python floats costs a fraction of numpy's per-call
+        overhead on (8,) temporaries. Every expression of the sample path keeps the operation order of the
+        array form (IEEE arithmetic rounds alike in both), so the voltages are bit-identical to read()'s.
+        """
+        if SLIP_ELEMENTS != 8:
+            raise NotImplementedError("_slip_sample's pairwise mean is written out for SLIP_ELEMENTS = 8")
+        u, pr = self.unit, self.params.photoreflector
         self._sensing_radius_m = self.params.flexure.sensing_radius_m
         self._reference_c = pr.reference_temperature_c
-        self._sin, self._cos = np.sin(self.unit.angles_rad), np.cos(self.unit.angles_rad)
         self._max_count = 2**pr.adc_bits - 1
-        self._gain_temperature_c, self._gain = math.nan, np.ones(CHANNELS)
-        self._slip_state = np.zeros(SLIP_ELEMENTS)
-        self._filter_state: np.ndarray | None = None
+        self._one_minus_alpha = 1.0 - self._alpha
+        self._filtering = self._alpha >= 1e-12
+        self._half_widths_list = self._half_widths.tolist()
+        f = u.slip_fraction
+        # (1 - f_k, f_k, s_k, V0_k, S_k, Q_k, C_k, P_k) of channel k
+        self._channel_rows = tuple(zip(
+            (1.0 - f).tolist(), f.tolist(), u.signs.tolist(), u.operating_point_v.tolist(),
+            u.sensitivity_v_per_m.tolist(), u.quadratic_v_per_m2.tolist(), u.cubic_v_per_m3.tolist(),
+            u.quartic_v_per_m4.tolist(), strict=True))
+        # (X_k, sin φ_k, cos φ_k) of channel k
+        self._tilt_rows = tuple(zip(u.crosstalk_v_per_nm.tolist(), np.sin(u.angles_rad).tolist(),
+                                    np.cos(u.angles_rad).tolist(), strict=True))
+        self._noise_v = u.noise_v.tolist()
 
     @property
     def lsb_v(self) -> float:
@@ -185,9 +210,10 @@ class PhotoReflectorArray:
         """
         twist = np.atleast_1d(np.asarray(twist_rad, dtype=float))
         _as_series("twist_rad", twist, len(twist))
-        slipped, self._slip_state = maxwell_slip(twist, self._half_widths, self._slip_state)
+        slipped, state = maxwell_slip(twist, self._half_widths, self._slip_state)
+        self._slip_state = state.tolist()
         v = self._analog(twist, slipped, tx_nm, ty_nm, temperature_c)
-        v = v + self._rng.standard_normal(v.shape) * self.unit.noise_v
+        v = v + self._noise.take(v.size).reshape(v.shape) * self.unit.noise_v
         v = self._filter(v)
         counts = np.clip(np.rint(v / self._lsb_v), 0, 2**self.params.photoreflector.adc_bits - 1)
         return counts * self._lsb_v
@@ -196,38 +222,126 @@ class PhotoReflectorArray:
                     temperature_c: float | None = None) -> np.ndarray:
         """One sample of :meth:`read` for scalar inputs, (8,) [V]: the same model and state, without the
         per-call array checks (the control loop reads once per tick)."""
-        u = self.unit
-        s = self._slip_state
-        np.clip(s, twist_rad - self._half_widths, twist_rad + self._half_widths, out=s)
-        f = u.slip_fraction
-        x = self._sensing_radius_m * (twist_rad * (1.0 - f) + s.mean() * f) * u.signs
-        optical = u.operating_point_v + x * (u.sensitivity_v_per_m + x * (
-            u.quadratic_v_per_m2 + x * (u.cubic_v_per_m3 + x * u.quartic_v_per_m4)))
+        return np.array(self.read_sample_list(twist_rad, tx_nm, ty_nm, temperature_c))
+
+    def read_sample_list(self, twist_rad: float, tx_nm: float = 0.0, ty_nm: float = 0.0,
+                         temperature_c: float | None = None) -> list[float]:
+        """:meth:`read_sample` as a list of eight Python floats [V] (the fast path of a control tick).
+
+        Parameters
+        ----------
+        twist_rad : float
+            Flexure twist, hub minus outer ring [rad].
+        tx_nm, ty_nm : float
+            Off-axis moments on the sensor [N·m].
+        temperature_c : float, optional
+            Board temperature [°C] (the calibration temperature if None).
+        """
+        slipped = self._slip_sample(twist_rad)
         temp = self._reference_c if temperature_c is None else temperature_c
         if temp != self._gain_temperature_c:  # the TMP117 moves in 7.8 m°C steps: reuse the gains between
-            self._gain_temperature_c = temp
-            self._gain = np.exp(u.tempco_per_k * (temp - self._reference_c))
-        v = self._gain * optical
+            self._set_gain_temperature(temp)
+        v = self._optical_sample(twist_rad, slipped)
         if tx_nm or ty_nm:
-            v += u.crosstalk_v_per_nm * (tx_nm * self._sin - ty_nm * self._cos)
-        v += self._rng.standard_normal(CHANNELS) * u.noise_v
-        if self._filter_state is not None and self._alpha >= 1e-12:
-            v = self._alpha * self._filter_state + (1.0 - self._alpha) * v
+            v = [vk + x * (tx_nm * s - ty_nm * c) for vk, (x, s, c) in zip(v, self._tilt_rows)]
+        v = self._noise_and_chain(v)
         self._filter_state = v
-        return np.clip(np.rint(v / self._lsb_v), 0, self._max_count) * self._lsb_v
+        return self._quantise(v)
+
+    def _slip_sample(self, twist_rad: float) -> float:
+        """Advance the Maxwell-slip elements to one input [rad]; their mean M(θ) [rad].
+
+        Each element is numpy's clip (NaN-propagating, the lower bound first) written out; the mean is
+        numpy's reduction of eight (its +0.0 identity plus the pairwise sum), over 8, so signed zeros, NaN
+        and ties come out as in :func:`maxwell_slip`. Written for SLIP_ELEMENTS = 8.
+        """
+        s = []
+        for sk, h in zip(self._slip_state, self._half_widths_list):
+            lo, hi = twist_rad - h, twist_rad + h
+            sk = sk if sk > lo or sk != sk else lo
+            s.append(sk if sk < hi or sk != sk else hi)
+        self._slip_state = s
+        return (0.0 + (((s[0] + s[1]) + (s[2] + s[3])) + ((s[4] + s[5]) + (s[6] + s[7])))) / SLIP_ELEMENTS
+
+    def _set_gain_temperature(self, temperature_c: float) -> None:
+        """Optical gains g_k(T) [-] at a board temperature [°C] (np.exp, as the array form)."""
+        self._gain_temperature_c = temperature_c
+        self._gain = np.exp(self.unit.tempco_per_k * (temperature_c - self._reference_c)).tolist()
+
+    def _optical_sample(self, twist_rad: float, slipped_rad: float) -> list[float]:
+        """g_k(T) · (V0_k + S_k x + Q_k x² + C_k x³ + P_k x⁴) per channel [V] for one twist and slip [rad]."""
+        r = self._sensing_radius_m
+        v = []
+        for (keep, f, sign, v0, s1, s2, s3, s4), g in zip(self._channel_rows, self._gain):
+            x = r * (twist_rad * keep + slipped_rad * f) * sign
+            v.append(g * (v0 + x * (s1 + x * (s2 + x * (s3 + x * s4)))))
+        return v
+
+    def _noise_and_chain(self, v: list[float]) -> list[float]:
+        """The channels' white noise added to the voltages [V], then the first-order sensing chain (one pass)."""
+        noisy = zip(v, self._noise.take_list(CHANNELS), self._noise_v)
+        if self._filter_state is None or not self._filtering:
+            return [vk + z * n for vk, z, n in noisy]
+        a, b = self._alpha, self._one_minus_alpha
+        return [a * state + b * (vk + z * n) for state, (vk, z, n) in zip(self._filter_state, noisy)]
+
+    def _quantise(self, v: list[float]) -> list[float]:
+        """ADC counts of the voltages times the LSB [V]: rint (half to even), clipped to [0, max count]."""
+        lsb, top = self._lsb_v, self._max_count
+        try:  # round() is rint for floats (a whole count is exact in a float); the ternary is the clip
+            return [(c if 0 <= (c := round(vk / lsb)) <= top else (0 if c < 0 else top)) * lsb for vk in v]
+        except (ValueError, OverflowError):  # a non-finite voltage: numpy's NaN propagation and saturation
+            return (np.clip(np.rint(np.array(v) / lsb), 0, top) * lsb).tolist()
 
     def _filter(self, v: np.ndarray) -> np.ndarray:
         """First-order sensing chain, exact for a signal held over each sample period."""
         if self._alpha < 1e-12:  # the chain settles within a sample: nothing to carry
-            self._filter_state = v[-1].copy()
+            self._filter_state = v[-1].tolist()
             return v
         out = np.empty_like(v)
-        state = v[0] if self._filter_state is None else self._filter_state
+        state = v[0] if self._filter_state is None else np.array(self._filter_state)
         for i in range(len(v)):
             state = self._alpha * state + (1.0 - self._alpha) * v[i]
             out[i] = state
-        self._filter_state = state
+        self._filter_state = state.tolist()
         return out
+
+
+class NormalStream:
+    """Standard normal draws of one generator, handed out in order, drawn in blocks.
+
+    ``Generator.standard_normal(n)`` fills its n values one draw after another, so handing out a block's
+    values in order gives exactly the numbers drawing each request's values on demand would. Chosen for
+    speed: one numpy call per ``block`` values instead of one per control tick.
+
+    Parameters
+    ----------
+    rng : numpy.random.Generator
+        The only consumer of its draws from here on.
+    block : int
+        Values drawn per refill.
+    """
+
+    def __init__(self, rng: np.random.Generator, block: int = 64 * CHANNELS) -> None:
+        self._rng, self._block = rng, block
+        self._buffer: list[float] = []
+        self._next = 0
+
+    def take_list(self, n: int) -> list[float]:
+        """The next n draws as Python floats."""
+        i, j = self._next, self._next + n
+        if j > len(self._buffer):
+            self._buffer = self._buffer[i:] + self._rng.standard_normal(max(self._block, n)).tolist()
+            i, j = 0, n
+        self._next = j
+        return self._buffer[i:j]
+
+    def take(self, n: int) -> np.ndarray:
+        """The next n draws, (n,) array (the buffered ones first, then straight from the generator)."""
+        held = self._buffer[self._next:self._next + n]
+        self._next += len(held)
+        rest = self._rng.standard_normal(n - len(held))
+        return np.concatenate((held, rest)) if held else rest
 
 
 def reference_torque(tau_nm: np.ndarray, params: TestbedParams, rng: np.random.Generator) -> np.ndarray:

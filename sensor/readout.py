@@ -9,6 +9,7 @@ thermal drift reach the controller.
 
 from __future__ import annotations
 
+import math
 from functools import lru_cache
 from typing import Literal
 
@@ -72,20 +73,33 @@ class TorqueSensorReadout:
         self.calibration = calibration or factory_calibration(self.params)
         self.seed = seed
         th = self.calibration.theta  # [V^3, V^2, V] coefficients per channel, then the offset
-        self._coefficients = (th[0:8].copy(), th[8:16].copy(), th[16:24].copy(), float(th[24]))
+        # (c3_k, c2_k, c1_k) per channel and c0, as Python floats: the per-tick path (see read)
+        self._rows = tuple(zip(th[0:8].tolist(), th[8:16].tolist(), th[16:24].tolist(), strict=True))
+        self._offset = float(th[24])
         self.reset()
 
     def reset(self) -> None:
         """Restart the noise sequence, the hysteresis and the sensing chain (same seed, same run)."""
         self._array = PhotoReflectorArray(self.params, seed=self.seed)
-        self.voltages_v = np.full(8, np.nan)
+        self._voltages: list[float] = [math.nan] * 8
+
+    @property
+    def voltages_v(self) -> np.ndarray:
+        """The eight channel voltages [V] of the last read, (8,) (NaN before the first)."""
+        return np.array(self._voltages)
 
     def read(self, twist_rad: float, temperature_c: float, tx_nm: float = 0.0, ty_nm: float = 0.0) -> float:
-        """Sensor torque [N·m] for one sample of flexure twist [rad], board temperature [°C], moments [N·m]."""
-        v = self._array.read_sample(twist_rad, tx_nm, ty_nm, temperature_c)
-        self.voltages_v = v
-        c3, c2, c1, c0 = self._coefficients  # Eq. 10 by Horner
-        return float(np.dot((c3 * v + c2) * v + c1, v) + c0)
+        """Sensor torque [N·m] for one sample of flexure twist [rad], board temperature [°C], moments [N·m].
+
+        Eq. 10 by Horner per channel, summed in channel order from 0.0 then plus the offset: the order of
+        ``np.dot`` (OpenBLAS's ddot adds an 8-vector sequentially), in Python floats for speed.
+        """
+        v = self._array.read_sample_list(twist_rad, tx_nm, ty_nm, temperature_c)
+        self._voltages = v
+        torque = 0.0
+        for (c3, c2, c1), vk in zip(self._rows, v):
+            torque += ((c3 * vk + c2) * vk + c1) * vk
+        return torque + self._offset
 
     def read_plant(self, plant) -> float:
         """Sensor torque [N·m] for the plant's current tick (its flexure twist and TMP117 reading)."""

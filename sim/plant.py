@@ -94,9 +94,13 @@ class Plant:
         self._frictionloss = m.dof_frictionloss
         th = self.params.thermal
         self._thermal_ticks = max(1, round(th.update_period_s / control_period))
-        # Views into MjData, cached for the hot loop (mj_resetData keeps the buffers in place).
+        # Views into MjData, cached for the hot loop and the accessors (mj_resetData keeps the buffers in
+        # place; each MjData attribute access builds a new view).
         d = self.data
         self._ctrl, self._qpos, self._qvel, self._act = d.ctrl, d.qpos, d.qvel, d.act
+        self._ten_length, self._ten_velocity = d.ten_length, d.ten_velocity
+        self._thermal_period_s = self._thermal_ticks * control_period
+        self._winding_resistance_ohm = self.params.motor.winding_resistance_ohm
         self.reset()
 
     # ------------------------------------------------------------------ stepping
@@ -122,6 +126,7 @@ class Plant:
         self._set_load_friction(0.0)
         mujoco.mj_forward(self.model, self.data)
         self.thermal = ThermalState(self.params.thermal, ambient_c)
+        self._tmp117_source, self._tmp117_c = None, math.nan  # see tmp117_temperature_c
         self._current_sq_sum = 0.0
         self._ticks = 0
         self._tau_cmd = 0.0
@@ -141,21 +146,27 @@ class Plant:
         ctrl = self._ctrl
         ctrl[self._u_motor] = tau_cmd_nm / self._gear
         ctrl[self._u_external] = tau_ext_nm
-        self._set_load_friction(abs(self._k_flexure * self._qpos[self._q_flexure]))
+        # _set_load_friction inlined (one call less per tick); .item() reads a Python float, whose arithmetic
+        # is cheaper than numpy scalars' (and rounds alike)
+        load_nm = abs(self._k_flexure * self._qpos.item(self._q_flexure))
+        self._frictionloss[self._dof_motor] = self._load_coeff * load_nm
         t_expected = d.time + self._tick_s
         mujoco.mj_step(self.model, d, self.n_substeps)
         # MuJoCo resets the data (time -> 0) when accelerations blow up; a time short of the
         # expected value or a non-finite state means the run diverged.
         if d.time < t_expected - self._half_step_s or not math.isfinite(self._qvel[self._dof_motor]):
             raise SimulationDiverged(self._divergence_message(t_expected))
-        current = self._act[self._act_current]
+        current = self._act.item(self._act_current)
         self._current_sq_sum += current * current
         self._ticks += 1
         if self._ticks % self._thermal_ticks == 0:
-            period = self._thermal_ticks * self.params.simulation.control_period_s
-            copper_w = self.params.motor.winding_resistance_ohm * self._current_sq_sum / self._thermal_ticks
-            self.thermal.advance(period, copper_w)
-            self._current_sq_sum = 0.0
+            self._advance_thermal()
+
+    def _advance_thermal(self) -> None:
+        """One thermal update with the mean copper loss of its control ticks."""
+        copper_w = self._winding_resistance_ohm * self._current_sq_sum / self._thermal_ticks
+        self.thermal.advance(self._thermal_period_s, copper_w)
+        self._current_sq_sum = 0.0
 
     def _divergence_message(self, t_expected: float) -> str:
         omega_h = self.omega_max_rad_s * self.timestep_s
@@ -168,13 +179,13 @@ class Plant:
 
     def read_signals(self, out: np.ndarray) -> None:
         """Write the signals of ``SIGNAL_UNITS``, in its order, into ``out`` (one call per tick in a run)."""
-        d, qpos, qvel = self.data, self._qpos, self._qvel
-        lever = d.ten_length[self._tendon]
-        lever_v = d.ten_velocity[self._tendon]
+        qpos, qvel = self._qpos, self._qvel
+        lever = self._ten_length[self._tendon]
+        lever_v = self._ten_velocity[self._tendon]
         current = self._act[self._act_current]
         out[:] = (self._tau_cmd, lever, lever_v, qpos[self._q_motor], qvel[self._dof_motor],
                   (self._k_loadcell * lever + self._c_loadcell * lever_v) / self.params.lever.length_m,
-                  self.thermal.tmp117_reading_c(), -self._k_flexure * qpos[self._q_flexure],
+                  self.tmp117_temperature_c, -self._k_flexure * qpos[self._q_flexure],
                   self._current_to_torque * current, current, qpos[self._q_backlash])
 
     # ------------------------------------------------------------------ named accessors (SI)
@@ -185,32 +196,32 @@ class Plant:
     @property
     def motor_angle_rad(self) -> float:
         """Motor (encoder) angle referred to the output [rad]."""
-        return float(self.data.qpos[self._q_motor])
+        return self._qpos.item(self._q_motor)
 
     @property
     def motor_velocity_rad_s(self) -> float:
         """Motor velocity referred to the output [rad/s]."""
-        return float(self.data.qvel[self._dof_motor])
+        return self._qvel.item(self._dof_motor)
 
     @property
     def output_angle_rad(self) -> float:
         """Absolute lever angle [rad]."""
-        return float(self.data.ten_length[self._tendon])
+        return self._ten_length.item(self._tendon)
 
     @property
     def output_velocity_rad_s(self) -> float:
         """Absolute lever velocity [rad/s]."""
-        return float(self.data.ten_velocity[self._tendon])
+        return self._ten_velocity.item(self._tendon)
 
     @property
     def backlash_angle_rad(self) -> float:
         """Hub angle relative to the gear, inside ±backlash.width_rad/2 [rad]."""
-        return float(self.data.qpos[self._q_backlash])
+        return self._qpos.item(self._q_backlash)
 
     @property
     def flexure_angle_rad(self) -> float:
         """Twist of the flexure, hub minus lever [rad] (positive when it transmits positive torque)."""
-        return float(-self.data.qpos[self._q_flexure])
+        return -self._qpos.item(self._q_flexure)
 
     @property
     def flexure_torque_nm(self) -> float:
@@ -220,8 +231,8 @@ class Plant:
     @property
     def loadcell_torque_nm(self) -> float:
         """Torque the load cell resists at the lever tip, spring and damper [N·m] (0 in 'free')."""
-        d = self.data
-        return self._k_loadcell * d.ten_length[self._tendon] + self._c_loadcell * d.ten_velocity[self._tendon]
+        return (self._k_loadcell * self._ten_length.item(self._tendon)
+                + self._c_loadcell * self._ten_velocity.item(self._tendon))
 
     @property
     def loadcell_force_n(self) -> float:
@@ -231,7 +242,7 @@ class Plant:
     @property
     def motor_current_a(self) -> float:
         """Armature (q-axis) current [A]."""
-        return float(self.data.act[self._act_current])
+        return self._act.item(self._act_current)
 
     @property
     def current_torque_estimate_nm(self) -> float:
@@ -247,7 +258,7 @@ class Plant:
     @property
     def bristle_deflection_rad(self) -> float:
         """LuGre bristle deflection, motor side [rad]."""
-        return float(self.data.act[self._act_bristle])
+        return self._act.item(self._act_bristle)
 
     @property
     def board_temperature_c(self) -> float:
@@ -257,7 +268,12 @@ class Plant:
     @property
     def tmp117_temperature_c(self) -> float:
         """Board temperature as the on-board TMP117 reports it [°C]."""
-        return self.thermal.tmp117_reading_c()
+        # Quantised once per thermal update (every thermal.update_period_s), not per read: the state's
+        # temperature array is replaced, never modified in place, when it moves.
+        temperatures = self.thermal.temperatures_c
+        if temperatures is not self._tmp117_source:
+            self._tmp117_source, self._tmp117_c = temperatures, self.thermal.tmp117_reading_c()
+        return self._tmp117_c
 
     @property
     def motor_temperature_c(self) -> float:

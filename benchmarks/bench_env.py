@@ -29,7 +29,7 @@ import numpy as np
 
 import sim  # noqa: F401  (registers the environment)
 import sim.plant
-from benchmarks.bench_plant import PEER_ENV, best_rate, peer_rate
+from benchmarks.bench_plant import PEER_ENV, best_rate, env_step_rate, peer_rate
 from controllers.feedback import make_feedback
 from controllers.loop import run_torque_loop
 from controllers.pi import PITorqueController
@@ -42,17 +42,7 @@ ACTION_NM = 0.3  # [N·m] a constant command: the rig loaded, the gear stuck or 
 
 
 def env_rate(steps: int, repeats: int, clock=time.perf_counter) -> float:
-    env = gym.make(ENV_ID)
-    env.reset(seed=0)
-    action = np.full(1, ACTION_NM, np.float32)
-
-    def run() -> None:
-        for _ in range(steps):
-            _, _, terminated, truncated, _ = env.step(action)
-            if terminated or truncated:
-                env.reset()
-
-    return best_rate(run, steps, repeats, clock)
+    return env_step_rate(gym.make(ENV_ID), np.full(1, ACTION_NM, np.float32), steps, repeats, clock)
 
 
 def breakdown_rates(steps: int, repeats: int, clock=time.perf_counter) -> dict[str, float]:

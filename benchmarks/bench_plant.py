@@ -60,12 +60,9 @@ def plant_rates(duration_s: float, repeats: int) -> dict[str, float]:
             "pure": best_rate(pure, n, repeats), "substeps": plant.n_substeps, "ticks": n}
 
 
-def peer_rate(steps: int, repeats: int, clock=time.perf_counter) -> float:
-    import gymnasium as gym
-
-    env = gym.make(PEER_ENV)
+def env_step_rate(env, action, steps: int, repeats: int, clock=time.perf_counter) -> float:
+    """Best ``env.step`` rate [steps/s] of a Gymnasium env under a constant ``action`` (reset when an episode ends)."""
     env.reset(seed=0)
-    action = np.zeros(env.action_space.shape, dtype=env.action_space.dtype)
 
     def run() -> None:
         for _ in range(steps):
@@ -74,6 +71,13 @@ def peer_rate(steps: int, repeats: int, clock=time.perf_counter) -> float:
                 env.reset()
 
     return best_rate(run, steps, repeats, clock)
+
+
+def peer_rate(steps: int, repeats: int, clock=time.perf_counter) -> float:
+    import gymnasium as gym
+
+    env = gym.make(PEER_ENV)
+    return env_step_rate(env, np.zeros(env.action_space.shape, dtype=env.action_space.dtype), steps, repeats, clock)
 
 
 def fidelity() -> tuple[object, object]:

@@ -129,16 +129,20 @@ KNOWN_FINE_ENCODER_FALSE_POSITIVES = {
     ("locked_pi_sensor", seed): "Coulomb level fitted low in the locked closed loop (open)" for seed in (31, 32, 33)}
 
 
-def _fine_encoder_cases():
-    for experiment in [e for e in EXPERIMENTS if e != "slide"]:  # the slide has no motor encoder
-        for seed in (31, 32, 33):
-            why = KNOWN_FINE_ENCODER_FALSE_POSITIVES.get((experiment, seed))
-            marks = [pytest.mark.xfail(reason=why, strict=True)] if why else []
-            yield pytest.param(experiment, seed, marks=marks, id=f"{experiment}-{seed}")
+def _cases(cases, known_false_positives: dict) -> list:
+    """pytest params of the (a, b) ``cases``, those in ``known_false_positives`` as strict expected failures with
+    the recorded reason (strict: the day one passes, the list must shrink)."""
+    params = []
+    for case in cases:
+        why = known_false_positives.get(case)
+        marks = [pytest.mark.xfail(reason=why, strict=True)] if why else []
+        params.append(pytest.param(*case, marks=marks, id="-".join(map(str, case))))
+    return params
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("experiment, seed", list(_fine_encoder_cases()))
+@pytest.mark.parametrize("experiment, seed", _cases([(e, s) for e in EXPERIMENTS if e != "slide"  # no motor encoder
+                                                     for s in (31, 32, 33)], KNOWN_FINE_ENCODER_FALSE_POSITIVES))
 def test_no_false_positives_with_a_fine_motor_encoder(experiment, seed):
     """Baseline logs with the 22-bit motor encoder give no finding.
 
@@ -183,20 +187,13 @@ CLOSED_LOOP_RANDOM_BASELINES = tuple(range(10))
 # the residual at the motor's velocity reversals (encoder counts and the bristle's physics-step update; not, as
 # first suspected, the load friction of the flexure vibration). Baselines 3, 9, 10 and 14 fail since the defaults
 # changed (8dae50a), 30 before. Strict: reports the fix.
-KNOWN_FALSE_POSITIVES = {(seed, "free"): "Stribeck curve fitted to the free swing's residual at the reversals (open)"
+KNOWN_FALSE_POSITIVES = {("free", seed): "Stribeck curve fitted to the free swing's residual at the reversals (open)"
                          for seed in (3, 9, 10, 14, 30)}
 
 
-def _random_baseline_cases():
-    for seed in RANDOM_BASELINES:
-        for fixture in ("locked", "free"):
-            why = KNOWN_FALSE_POSITIVES.get((seed, fixture))
-            marks = [pytest.mark.xfail(reason=why, strict=True)] if why else []
-            yield pytest.param(fixture, seed, marks=marks, id=f"{fixture}-{seed}")
-
-
 @pytest.mark.slow
-@pytest.mark.parametrize("fixture, baseline_seed", list(_random_baseline_cases()))
+@pytest.mark.parametrize("fixture, baseline_seed", _cases([(f, s) for s in RANDOM_BASELINES for f in ("locked", "free")],
+                                                          KNOWN_FALSE_POSITIVES))
 def test_no_false_positives_on_random_baselines(fixture, baseline_seed):
     """Logs of a baseline drawn across the plausible ranges, analysed against that rig, give no finding."""
     log, rig, _ = hidden_effect_log(fixture, [], 1000 + baseline_seed, DURATION_S,
@@ -206,19 +203,16 @@ def test_no_false_positives_on_random_baselines(fixture, baseline_seed):
 
 # Known open false positive (docs/discrepancy.md, Limits: locked fixture at low load friction): the surrogate's stick
 # band of the load-dependent friction, measured at the defaults, does not match MuJoCo's friction row at mu 0.027.
-KNOWN_CLOSED_LOOP_FALSE_POSITIVES = {5: "load_dependent_friction fitted 6.8 % high at mu 0.027, 24 % held-out gain (open)"}
-
-
-def _closed_loop_cases():
-    for experiment in ("locked_pi_sensor", "locked_pi_current"):
-        for seed in CLOSED_LOOP_RANDOM_BASELINES:
-            why = KNOWN_CLOSED_LOOP_FALSE_POSITIVES.get(seed)
-            marks = [pytest.mark.xfail(reason=why, strict=True)] if why else []
-            yield pytest.param(experiment, seed, marks=marks, id=f"{experiment}-{seed}")
+CLOSED_LOOP_EXPERIMENTS = ("locked_pi_sensor", "locked_pi_current")
+KNOWN_CLOSED_LOOP_FALSE_POSITIVES = {
+    (e, 5): "load_dependent_friction fitted 6.8 % high at mu 0.027, 24 % held-out gain (open)"
+    for e in CLOSED_LOOP_EXPERIMENTS}
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("experiment, baseline_seed", list(_closed_loop_cases()))
+@pytest.mark.parametrize("experiment, baseline_seed", _cases([(e, s) for e in CLOSED_LOOP_EXPERIMENTS
+                                                              for s in CLOSED_LOOP_RANDOM_BASELINES],
+                                                             KNOWN_CLOSED_LOOP_FALSE_POSITIVES))
 def test_no_false_positives_on_random_baselines_in_closed_loop(experiment, baseline_seed):
     """Both feedback modes of the torque loop, on random baselines, give no finding."""
     log, rig, _ = hidden_effect_log(experiment, [], 1000 + baseline_seed, DURATION_S,

@@ -14,6 +14,7 @@ from controllers.admittance import AdmittanceController
 from controllers.feedback import TorqueFeedback
 from controllers.motor_driver import CurrentToTorqueMap
 from controllers.pi import PITorqueController
+from sensor.photoreflector import CHANNELS
 from sim.plant import SIGNAL_UNITS, Plant
 from sim.run import Progress
 from sim.runlog import RunLog
@@ -90,7 +91,7 @@ def run_torque_loop(plant: Plant, controller: PITorqueController, feedback: Torq
     bar = Progress(progress_label, n, plant.params.simulation.control_period_s) if progress_label else None
     use_hub = bool(np.any(tau_hub))
     delivered = CurrentToTorqueMap.from_params(plant.params).delivered_nm
-    volts = np.empty((n, 8)) if feedback.kind == "sensor" else None
+    volts = np.empty((n, CHANNELS)) if feedback.kind == "sensor" else None
     for k in range(n):
         measured[k] = feedback.read(plant)
         if volts is not None:
@@ -143,7 +144,7 @@ def run_admittance_loop(plant: Plant, controller: AdmittanceController, feedback
     measured, hand_torque, theta_ref, omega_ref = (np.empty(n) for _ in range(4))
     bar = Progress(progress_label, n, plant.params.simulation.control_period_s) if progress_label else None
     delivered = CurrentToTorqueMap.from_params(plant.params).delivered_nm
-    volts = np.empty((n, 8)) if feedback.kind == "sensor" else None
+    volts = np.empty((n, CHANNELS)) if feedback.kind == "sensor" else None
     for k in range(n):
         measured[k] = feedback.read(plant)
         if volts is not None:

@@ -231,8 +231,8 @@ class TorqueTrackingEnv(gym.Env):
 
     @property
     def channel_voltages_v(self) -> np.ndarray:
-        """The eight photo-reflector voltages [V] of the last observation."""
-        return np.array(self._sensor.voltages_v)
+        """The eight photo-reflector voltages [V] of the last observation (a new array)."""
+        return self._sensor.voltages_v
 
     def _check_options(self, options: dict[str, Any] | None) -> dict[str, Any]:
         if options is None:

@@ -30,7 +30,7 @@ import numpy as np
 from controllers.admittance import AdmittanceController
 from controllers.feedback import make_feedback
 from controllers.loop import run_admittance_loop
-from experiments.common import add_experiment_args, load_params_arg, record_rerun, write_json
+from experiments.common import add_experiment_args, load_params_arg, record_rerun, save_figure, write_json
 from sim.params import TestbedParams
 from sim.plant import Plant
 from sim.runlog import RunLog
@@ -210,12 +210,7 @@ def plot_admittance(result: AdmittanceResult, directory: Path) -> Path:
         for ax in axes[:, col]:
             ax.legend(fontsize=6)
     fig.suptitle("Admittance control, free lever (paper Fig. admittance)", fontsize=9)
-    fig.tight_layout()
-    directory.mkdir(parents=True, exist_ok=True)
-    path = directory / "admittance.png"
-    fig.savefig(path, dpi=120)
-    plt.close(fig)
-    return path
+    return save_figure(fig, directory, "admittance.png")
 
 
 def main(argv: list[str] | None = None) -> None:

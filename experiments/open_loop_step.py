@@ -16,7 +16,7 @@ from pathlib import Path
 
 import numpy as np
 
-from experiments.common import add_params_arg, add_rerun_args, load_params_arg, record_rerun, write_json
+from experiments.common import add_params_arg, add_rerun_args, load_params_arg, record_rerun, save_figure, write_json
 from sim.params import TestbedParams
 from sim.plant import Plant
 from sim.run import run_open_loop
@@ -103,11 +103,7 @@ def plot_result(result: OpenLoopStepResult, directory: Path) -> Path:
         ax.axhline(step.command_nm, color="k", lw=0.8, label="command")
         ax.set(title=f"{step.command_nm:g} N·m step", xlabel="time [s]", ylabel="torque [N·m]")
         ax.legend(fontsize=7)
-    fig.tight_layout()
-    path = directory / "open_loop_step.png"
-    fig.savefig(path, dpi=120)
-    plt.close(fig)
-    return path
+    return save_figure(fig, directory, "open_loop_step.png")
 
 
 def main(argv: list[str] | None = None) -> None:

@@ -33,7 +33,7 @@ from controllers.loop import run_torque_loop
 from controllers.pi import PITorqueController
 from controllers.tracking import TrackingError, tracking_error
 from experiments.common import (add_experiment_args, feedback_kinds, format_rows, load_params_arg,
-                                loadcell_torque_nm, paper_row, record_rerun, write_json)
+                                loadcell_torque_nm, paper_row, record_rerun, save_figure, write_json)
 from sim.params import TestbedParams
 from sim.plant import Plant
 from sim.run import run_open_loop
@@ -176,12 +176,7 @@ def plot_sinusoid(result: SinusoidResult, directory: Path) -> Path:
         ax.title.set_fontsize(7)
         ax.legend(fontsize=6)
     fig.suptitle("Sine and square tracking, locked lever (paper Fig. sinwave, Table VII)", fontsize=9)
-    fig.tight_layout()
-    directory.mkdir(parents=True, exist_ok=True)
-    path = directory / "sinusoid.png"
-    fig.savefig(path, dpi=120)
-    plt.close(fig)
-    return path
+    return save_figure(fig, directory, "sinusoid.png")
 
 
 def main(argv: list[str] | None = None) -> None:

@@ -37,7 +37,7 @@ from controllers.loop import run_torque_loop
 from controllers.pi import PITorqueController
 from controllers.tracking import TrackingError, tracking_error
 from experiments.common import (add_experiment_args, feedback_kinds, format_rows, load_params_arg,
-                                loadcell_torque_nm, paper_row, record_rerun, write_json)
+                                loadcell_torque_nm, paper_row, record_rerun, save_figure, write_json)
 from sim.params import TestbedParams
 from sim.plant import Plant
 from sim.runlog import RunLog
@@ -231,12 +231,7 @@ def plot_step(result: StepResult, directory: Path) -> Path:
         ax.set(title=name, xlabel="time [s]", ylabel="torque [N·m]")
         ax.legend(fontsize=6)
     fig.suptitle("Step and disturbance tests, locked lever (paper Fig. step, Table VI)", fontsize=9)
-    fig.tight_layout()
-    directory.mkdir(parents=True, exist_ok=True)
-    path = directory / "step.png"
-    fig.savefig(path, dpi=120)
-    plt.close(fig)
-    return path
+    return save_figure(fig, directory, "step.png")
 
 
 def main(argv: list[str] | None = None) -> None:

@@ -54,7 +54,7 @@ from scipy.optimize import minimize
 
 from controllers.pi import PAPER_KI_PER_S, PAPER_KP, PITorqueController
 from envs.torque_tracking import TorqueTrackingEnv
-from experiments.common import add_experiment_args, load_params_arg, record_rerun, write_json
+from experiments.common import add_experiment_args, load_params_arg, record_rerun, save_figure, write_json
 from sim.params import TestbedParams
 from sim.runlog import RunLog
 
@@ -317,12 +317,7 @@ def plot_tune(result: TuneResult, directory: Path) -> Path:
             ax.plot(ep.time_s, ep.output_nm, color=colour, lw=0.8, label=f"{label} gains (RMS {ep.rms_nm:.4g})")
         ax.set(title=name, xlabel="time [s]", ylabel="load-cell torque [N·m]")
         ax.legend(fontsize=6)
-    fig.tight_layout()
-    directory.mkdir(parents=True, exist_ok=True)
-    path = directory / "tune.png"
-    fig.savefig(path, dpi=120)
-    plt.close(fig)
-    return path
+    return save_figure(fig, directory, "tune.png")
 
 
 def main(argv: list[str] | None = None) -> None:

@@ -17,7 +17,7 @@ from controllers.pi import PITorqueController
 from sensor.photoreflector import CHANNELS
 from sim.plant import SIGNAL_UNITS, Plant
 from sim.run import Progress
-from sim.runlog import RunLog
+from sim.runlog import RunLog, add_voltage_columns
 
 PROGRESS_EVERY_TICKS = 1000
 
@@ -35,13 +35,6 @@ def apply_hub_torque(plant: Plant, tau_nm: float) -> None:
 
 def _columns(names: list[str], out: np.ndarray, extra: dict[str, np.ndarray], times: np.ndarray):
     return {"time": times, **{name: out[:, i].copy() for i, name in enumerate(names)}, **extra}
-
-
-def _add_voltages(extra: dict, units: dict, volts: np.ndarray) -> None:
-    """The sensor's eight channel voltages of each tick's read as the standard columns v1..v8 [V]."""
-    for i in range(volts.shape[1]):
-        extra[f"v{i + 1}"] = volts[:, i].copy()
-        units[f"v{i + 1}"] = "V"
 
 
 def _check_profile(name: str, values, n: int) -> np.ndarray:
@@ -110,7 +103,7 @@ def run_torque_loop(plant: Plant, controller: PITorqueController, feedback: Torq
     if feedback.kind == "sensor":
         extra["tau_sensor"] = measured.copy()
         units["tau_sensor"] = "N·m"
-        _add_voltages(extra, units, volts)
+        add_voltage_columns(extra, units, volts)
     return RunLog(_columns(names, out, extra, times), units,
                   {"fixture": plant.fixture, "feedback": feedback.kind, "physics_timestep_s": plant.timestep_s,
                    "lever_length_m": plant.params.lever.length_m,
@@ -163,7 +156,7 @@ def run_admittance_loop(plant: Plant, controller: AdmittanceController, feedback
     if feedback.kind == "sensor":
         extra["tau_sensor"] = measured.copy()
         units["tau_sensor"] = "N·m"
-        _add_voltages(extra, units, volts)
+        add_voltage_columns(extra, units, volts)
     return RunLog(_columns(names, out, extra, times), units,
                   {"fixture": plant.fixture, "feedback": feedback.kind, "physics_timestep_s": plant.timestep_s,
                    "lever_length_m": plant.params.lever.length_m, **(meta or {})})

@@ -2,10 +2,12 @@
 
 ``register_envs()`` registers :data:`ENV_ID` with Gymnasium; ``import sim`` calls it, so after that
 ``gymnasium.make("torquebed/TorqueTracking-v0")`` works. Without importing anything first, use Gymnasium's
-module prefix: ``gymnasium.make("sim:torquebed/TorqueTracking-v0")``. (The ``gymnasium.envs`` entry point in
-pyproject.toml serves Gymnasium 0.26-0.29, which load plugins from it; Gymnasium >= 1.0 no longer does.)
+module prefix: ``gymnasium.make("sim:torquebed/TorqueTracking-v0")``. (pyproject.toml also declares the
+``gymnasium.envs`` entry point the issue asks for; Gymnasium >= 1.0, which the project requires, no longer reads
+it.)
 
-This module imports nothing heavy: the environment itself is :mod:`envs.torque_tracking`.
+Importing this module is light; ``register_envs()`` imports Gymnasium (~0.2 s), and the environment itself is
+:mod:`envs.torque_tracking`.
 """
 
 from __future__ import annotations

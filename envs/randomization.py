@@ -15,12 +15,9 @@ nominal unit's factory calibration, as a real sensor does when its unit drifts f
 
 from __future__ import annotations
 
-import dataclasses
-import math
-
 import numpy as np
 
-from sim.params import TestbedParams
+from sim.params import TestbedParams, field_range
 
 MAX_SCALE = 0.5  # [-] largest relative spread accepted
 
@@ -40,13 +37,10 @@ RANDOMIZED_FIELDS: tuple[tuple[str, str], ...] = (
 _SHARED_FACTOR = {("photoreflector", "noise_max_v"): ("photoreflector", "noise_min_v")}
 
 
-def field_range(params: TestbedParams, group: str, name: str) -> tuple[float, float]:
-    """The valid range [low, high] of ``group.name`` from its metadata (an open low end nudged inside)."""
-    f = next(f for f in dataclasses.fields(getattr(params, group)) if f.name == name)
-    low, high = f.metadata["low"], f.metadata["high"]
-    if f.metadata["low_open"]:
-        low = math.nextafter(low, math.inf)
-    return low, high
+def check_scale(scale: float) -> None:
+    """Raise ValueError naming ``randomization_scale`` unless it is in [0, MAX_SCALE]."""
+    if not (0.0 <= scale <= MAX_SCALE):
+        raise ValueError(f"randomization_scale = {scale!r}: valid range [0, {MAX_SCALE}]")
 
 
 def randomize_params(params: TestbedParams, rng: np.random.Generator, scale: float) -> TestbedParams:
@@ -62,8 +56,7 @@ def randomize_params(params: TestbedParams, rng: np.random.Generator, scale: flo
     scale : float
         Relative spread s in [0, MAX_SCALE].
     """
-    if not (0.0 <= scale <= MAX_SCALE):
-        raise ValueError(f"randomization_scale = {scale!r}: valid range [0, {MAX_SCALE}]")
+    check_scale(scale)
     factors = {key: rng.uniform(1.0 - scale, 1.0 + scale) for key in RANDOMIZED_FIELDS}
     factors.update({key: factors[src] for key, src in _SHARED_FACTOR.items()})
     groups: dict[str, dict[str, float]] = {}

@@ -19,7 +19,9 @@ TASKS = ("step", "sine", "square", "random")
 TASK_CHOICES = TASKS + ("any",)  # 'any': one of TASKS drawn per episode
 PAPER_SINES = tuple(w for w in WAVEFORMS if w.shape == "sine")  # 0.05 and 10 N·m at 0.2 Hz
 PAPER_SQUARES = tuple(w for w in WAVEFORMS if w.shape == "square")  # 0.1 N·m at 1 Hz
-RANDOM_AMPLITUDE_RANGE_NM = (0.05, 10.0)  # [N·m] log-uniform: the paper's smallest to largest reference
+# [N·m] log-uniform: the paper's smallest to largest reference (0.05 and 10 N·m)
+RANDOM_AMPLITUDE_RANGE_NM = (min(STEPS_NM), max(w.amplitude_nm for w in WAVEFORMS))
+MAX_LEAD_IN_FRACTION = 0.25  # [1] a step's zero lead-in is at most this share of the episode
 RANDOM_HOLD_RANGE_S = (0.05, 0.5)  # [s] hold time of each random level
 RANDOM_SMOOTHING_S = 0.02  # [s] first-order filter on the random levels (a commanded, not a jumping, torque)
 MIN_REWARD_SCALE_NM = 0.01  # [N·m] floor of the reward's normalisation (a zero reference)
@@ -78,7 +80,7 @@ def make_reference(task: str, n_ticks: int, dt_s: float, rng: np.random.Generato
     t = np.arange(n_ticks) * dt_s
     if task == "step":
         size = float(rng.choice(STEPS_NM)) if amplitude_nm is None else amplitude_nm
-        values = np.where(t >= min(PRE_STEP_S, 0.25 * n_ticks * dt_s) - 0.5 * dt_s, size, 0.0)
+        values = np.where(t >= min(PRE_STEP_S, MAX_LEAD_IN_FRACTION * n_ticks * dt_s) - 0.5 * dt_s, size, 0.0)
         return Reference(task, values, size, 0.0)
     if task in ("sine", "square"):
         paper = PAPER_SINES if task == "sine" else PAPER_SQUARES

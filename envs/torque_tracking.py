@@ -11,7 +11,7 @@ from gymnasium import spaces
 
 from controllers.feedback import make_feedback
 from controllers.motor_driver import CurrentToTorqueMap
-from envs.randomization import MAX_SCALE, randomize_params
+from envs.randomization import check_scale, randomize_params
 from envs.references import TASK_CHOICES, TASKS, Reference, make_reference
 from experiments.common import LOADCELL_READING_NOISE_N
 from sensor.readout import factory_calibration
@@ -120,8 +120,7 @@ class TorqueTrackingEnv(gym.Env):
             raise ValueError(f"task = {task!r}: valid values are {', '.join(TASK_CHOICES)}")
         if fixture not in FIXTURES:
             raise ValueError(f"fixture = {fixture!r}: valid values are {', '.join(FIXTURES)}")
-        if not (0.0 <= randomization_scale <= MAX_SCALE):
-            raise ValueError(f"randomization_scale = {randomization_scale!r}: valid range [0, {MAX_SCALE}]")
+        check_scale(randomization_scale)
         if not (np.isfinite(ctrl_cost_weight) and ctrl_cost_weight >= 0.0):
             raise ValueError(f"ctrl_cost_weight = {ctrl_cost_weight!r}: valid range [0, inf)")
         if render_mode is not None:

@@ -122,6 +122,10 @@ class AdmittanceResult:
     pushes: list[PushOutcome]
     seed: int
 
+    def logs(self) -> dict[str, RunLog]:
+        """Push name -> its log."""
+        return {p.name: p.log for p in self.pushes}
+
     @property
     def follows_slow(self) -> bool:
         slow = self.pushes[0]
@@ -226,7 +230,7 @@ def main(argv: list[str] | None = None) -> None:
         print(f"wrote {args.json}")
     if args.plot:
         print(f"figure: {plot_admittance(result, args.plot)}")
-    record_rerun(args, {p.name: p.log for p in result.pushes}, params)
+    record_rerun(args, result.logs(), params)
 
 
 if __name__ == "__main__":

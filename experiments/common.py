@@ -71,7 +71,7 @@ def add_experiment_args(parser: argparse.ArgumentParser, *, feedback: bool = Tru
         parser.add_argument("--feedback", choices=FEEDBACK_CHOICES, default="both",
                             help="torque measurement the PI closes on (default both)")
     parser.add_argument("--seed", type=int, default=0, help="seed of the sensor noise (default 0)")
-    parser.add_argument("--duration", type=_positive_seconds, metavar="S",
+    parser.add_argument("--duration", type=positive_seconds, metavar="S",
                         help="shorten every test to S seconds (a quick check; the paper's figures need the "
                              "full length)")
     parser.add_argument("--json", type=Path, metavar="PATH", help="write the results as JSON")
@@ -115,13 +115,11 @@ def record_log(time_s, voltages_v, *, tau_sensor_nm=None, tau_mini85_nm=None, ta
                temperature_c=None, meta: dict | None = None):
     """A :class:`sim.runlog.RunLog` of a sensor record without mechanics (calibration rig, chamber): time [s],
     channel voltages (N, 8) [V] as v1..v8, and the torques [N·m] and TMP117 temperature [°C] given."""
-    from sim.runlog import RunLog
+    from sim.runlog import RunLog, add_voltage_columns
 
     columns = {"time": np.asarray(time_s, dtype=float)}
     units = {"time": "s"}
-    volts = np.asarray(voltages_v, dtype=float)
-    for k in range(volts.shape[1]):
-        columns[f"v{k + 1}"], units[f"v{k + 1}"] = volts[:, k], "V"
+    add_voltage_columns(columns, units, voltages_v)
     for name, values, unit in (("tau_sensor", tau_sensor_nm, "N·m"), ("tau_mini85", tau_mini85_nm, "N·m"),
                                ("tau_applied", tau_applied_nm, "N·m"), ("temperature", temperature_c, "°C")):
         if values is not None:
@@ -129,7 +127,7 @@ def record_log(time_s, voltages_v, *, tau_sensor_nm=None, tau_mini85_nm=None, ta
     return RunLog(columns, units, {"fixture": "calibration rig", **(meta or {})})
 
 
-def _positive_seconds(text: str) -> float:
+def positive_seconds(text: str) -> float:
     value = float(text)
     if not math.isfinite(value) or value <= 0:
         raise argparse.ArgumentTypeError(f"--duration {text}: must be > 0 s")

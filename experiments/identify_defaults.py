@@ -50,8 +50,7 @@ from pathlib import Path
 
 import numpy as np
 
-from experiments.common import (_positive_seconds, add_rerun_args, record_rerun, rerun_requested,
-                                write_json)
+from experiments.common import add_rerun_args, positive_seconds, record_rerun, rerun_requested, write_json
 from experiments.sinusoid import run_sinusoid
 from experiments.step import run_step
 from sim.params import TestbedParams
@@ -80,8 +79,7 @@ def run_candidate(params: TestbedParams, seed: int = 0,
     """
     step = run_step(params, seed=seed, duration_s=duration_s)
     sine = run_sinusoid(params, seed=seed, duration_s=duration_s)
-    logs = {**{f"{c.name}, {c.feedback}": c.log for c in step.cases},
-            **{f"{c.waveform.name}, {c.feedback}": c.log for c in sine.cases}}
+    logs = {**step.logs(), **sine.logs()}
     return step.rows() + sine.rows(), logs
 
 
@@ -99,7 +97,7 @@ def score(rows: list[dict]) -> tuple[float, float]:
 def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--json", type=Path, help="write every candidate's score and the best one's rows as JSON")
-    parser.add_argument("--duration", type=_positive_seconds, metavar="S",
+    parser.add_argument("--duration", type=positive_seconds, metavar="S",
                         help="shorten every test to S seconds (a quick check of the command line; the scores "
                              "need the full length)")
     add_rerun_args(parser, "the best candidate's step, disturbance and sinusoid runs (kept during the search, "

@@ -143,9 +143,7 @@ def run_paper(params: TestbedParams | None = None, seed: int = 0, duration_s: fl
     if plot_dir is not None:
         figures += [plot_step(step, plot_dir), plot_sinusoid(sinusoid, plot_dir),
                     plot_admittance(admittance, plot_dir)]
-    logs = {**{f"{c.name}, {c.feedback}": c.log for c in step.cases},
-            **{f"{c.waveform.name}, {c.feedback}": c.log for c in sinusoid.cases},
-            **{p.name: p.log for p in admittance.pushes}}
+    logs = {**step.logs(), **sinusoid.logs(), **admittance.logs()}
     return PaperResult(rows, _behaviours(step, sinusoid, admittance, breakaway), figures, missing, logs)
 
 

@@ -96,6 +96,10 @@ class SinusoidResult:
     cases: list[SinusoidCase]
     seed: int
 
+    def logs(self) -> dict[str, RunLog]:
+        """Run name ('<waveform>, <feedback>') -> its log."""
+        return {f"{c.waveform.name}, {c.feedback}": c.log for c in self.cases}
+
     def rows(self) -> list[dict]:
         out = []
         for c in self.cases:
@@ -197,7 +201,7 @@ def main(argv: list[str] | None = None) -> None:
         print(f"wrote {args.json}")
     if args.plot:
         print(f"figure: {plot_sinusoid(result, args.plot)}")
-    record_rerun(args, {f"{c.waveform.name}, {c.feedback}": c.log for c in result.cases}, params)
+    record_rerun(args, result.logs(), params)
 
 
 if __name__ == "__main__":

@@ -110,6 +110,10 @@ class StepResult:
     cases: list[StepCase]
     seed: int
 
+    def logs(self) -> dict[str, RunLog]:
+        """Run name ('<case>, <feedback>') -> its log."""
+        return {f"{c.name}, {c.feedback}": c.log for c in self.cases}
+
     def rows(self) -> list[dict]:
         out = []
         for c in self.cases:
@@ -248,7 +252,7 @@ def main(argv: list[str] | None = None) -> None:
         print(f"wrote {args.json}")
     if args.plot:
         print(f"figure: {plot_step(result, args.plot)}")
-    record_rerun(args, {f"{c.name}, {c.feedback}": c.log for c in result.cases}, params)
+    record_rerun(args, result.logs(), params)
 
 
 if __name__ == "__main__":

@@ -53,7 +53,8 @@ import numpy as np
 from scipy.optimize import minimize
 
 from controllers.pi import PAPER_KI_PER_S, PAPER_KP, PITorqueController
-from envs.torque_tracking import TorqueTrackingEnv
+from controllers.tracking import tracking_error
+from envs.torque_tracking import OBSERVATION_NAMES, TorqueTrackingEnv
 from experiments.common import add_experiment_args, load_params_arg, record_rerun, save_figure, write_json
 from sim.params import TestbedParams
 from sim.runlog import RunLog
@@ -66,7 +67,10 @@ KI_RANGE_PER_S = (0.1, 1000.0)  # [1/s]
 KD_RANGE_NMS_PER_RAD = (0.0, 1.0)  # [N·m·s/rad]
 SIMPLEX_LOG_STEP = math.log(2.0)  # initial simplex: gains halved / doubled
 SIMPLEX_KD_STEP = 0.02  # [N·m·s/rad]
-FEEDBACK_OBSERVATION = {"sensor": 1, "current": 4}  # index into the env's observation
+FEEDBACK_OBSERVATION = {"sensor": OBSERVATION_NAMES.index("tau_sensor"),  # index into the env's observation
+                        "current": OBSERVATION_NAMES.index("tau_current_estimate")}
+REFERENCE_OBSERVATION = OBSERVATION_NAMES.index("tau_ref")
+VELOCITY_OBSERVATION = OBSERVATION_NAMES.index("qd_motor")
 
 
 @dataclass(frozen=True)
@@ -117,14 +121,13 @@ def run_episode(env: TorqueTrackingEnv, gains: Gains, task: TuneTask, seed: int,
     time, ref, out = np.empty(n), np.empty(n), np.empty(n)
     action = np.zeros(1)
     for k in range(n):
-        action[0] = pi.step(obs[0], obs[i_meas]) - kd * obs[3]
+        action[0] = pi.step(obs[REFERENCE_OBSERVATION], obs[i_meas]) - kd * obs[VELOCITY_OBSERVATION]
         obs, _, terminated, _, info = env.step(action)
         if terminated:
             return Episode(math.inf, time[:k], ref[:k], out[:k])
         time[k], ref[k], out[k] = info["time_s"], info["reference_nm"], info["loadcell_torque_nm"]
     start = int(np.flatnonzero(ref)[0]) if np.any(ref) else 0  # graded from the reference's first move on
-    e = out[start:] - ref[start:]
-    return Episode(float(np.sqrt(np.mean(e * e))), time, ref, out)
+    return Episode(tracking_error(out[start:], ref[start:]).rms_nm, time, ref, out)
 
 
 @dataclass(frozen=True)
@@ -255,7 +258,7 @@ def tune(params: TestbedParams | None = None, feedback: str = "sensor", damping:
                  options={"initial_simplex": np.array(simplex), "maxfev": max_evaluations,
                           "xatol": 1e-3, "fatol": 1e-4})
     tuned = _gains(best["x"]) or PAPER_GAINS
-    tuned_eps = errors(tuned)
+    tuned_eps = paper_eps if tuned == PAPER_GAINS else errors(tuned)
     tuned_rms = [e.rms_nm for e in tuned_eps]
     tuned_margin = margin_rms(tuned)
     fell_back = any(q > p for q, p in zip(tuned_rms, paper_rms, strict=True)) or not admissible(tuned_margin)

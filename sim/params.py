@@ -330,6 +330,15 @@ class TestbedParams:
         return out
 
 
+def field_range(params: TestbedParams, group: str, name: str) -> tuple[float, float]:
+    """The valid range [low, high] of ``group.name`` from its metadata (an open low end nudged inside)."""
+    f = next(f for f in dataclasses.fields(getattr(params, group)) if f.name == name)
+    low, high = f.metadata["low"], f.metadata["high"]
+    if f.metadata["low_open"]:
+        low = math.nextafter(low, math.inf)
+    return low, high
+
+
 def _validate_group(name: str, obj: Any) -> None:
     for f in dataclasses.fields(obj):
         value = getattr(obj, f.name)

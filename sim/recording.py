@@ -44,10 +44,11 @@ import rerun.blueprint as rrb
 
 from models.gim8108_testbed.build import build_model
 from sim.params import TestbedParams
-from sim.runlog import RunLog
+from sim.runlog import VOLTAGE_COLUMNS, RunLog
 
 DEFAULT_POSE_RATE_HZ = 50.0  # [Hz] rate of the 3D pose and arrow samples
 ARROW_M_PER_NM = 0.01  # [m] arrow length per N·m of load-cell torque
+ARROW_HEIGHT_M = 0.01  # [m] the arrow's base above the lever plane (drawn clear of the lever)
 TIMELINE = "time"
 # body of the MJCF -> entity under /<run>/testbed
 BODY_ENTITIES = {"stator": "motor", "output": "hub", "lever": "flexure", "loadcell": "loadcell"}
@@ -56,7 +57,7 @@ TORQUE_SIGNALS = (("reference", "tau_ref"), ("sensor", "tau_sensor"), ("feedback
                   ("mini85", "tau_mini85"), ("applied", "tau_applied"))  # the calibration rig's records
 FIXED_VIEWS = (  # group, view title, row share, log columns whose presence gives the view something to show
     ("torque", "torque [N·m]", 3, tuple(c for _, c in TORQUE_SIGNALS) + ("force_loadcell",)),
-    ("voltages", "channel voltages [V]", 2, tuple(f"v{k}" for k in range(1, 9))),
+    ("voltages", "channel voltages [V]", 2, VOLTAGE_COLUMNS),
     ("temperature", "temperature [°C]", 1, ("temperature",)))
 FIXED_GROUPS = ("testbed",) + tuple(group for group, *_ in FIXED_VIEWS)  # entity groups of the fixed layout
 
@@ -159,15 +160,17 @@ def record_run(rec: rr.RecordingStream, name: str, log: RunLog, params: TestbedP
     n = len(t)
     times = rr.TimeColumn(TIMELINE, duration=t)
     lever_m = log.meta.get("lever_length_m", params.lever.length_m)
-    loadcell_nm = np.asarray(cols["force_loadcell"]) * lever_m if "force_loadcell" in cols else None
+    # the load cell's torque [N·m]: only the locked fixture has one
+    loadcell_nm = (np.asarray(cols["force_loadcell"]) * lever_m
+                   if "force_loadcell" in cols and fixture == "locked" else None)
     for label, column in TORQUE_SIGNALS:
         if column in cols:
             _send_scalar(rec, f"{root}/torque/{label}", times, cols[column], f"{label} [N·m]")
-    if loadcell_nm is not None and fixture == "locked":
+    if loadcell_nm is not None:
         _send_scalar(rec, f"{root}/torque/loadcell", times, loadcell_nm, "load cell [N·m]")
-    for k in range(1, 9):
-        if f"v{k}" in cols:
-            _send_scalar(rec, f"{root}/voltages/v{k}", times, cols[f"v{k}"], f"v{k} [V]")
+    for name in VOLTAGE_COLUMNS:
+        if name in cols:
+            _send_scalar(rec, f"{root}/voltages/{name}", times, cols[name], f"{name} [V]")
     if "temperature" in cols:
         _send_scalar(rec, f"{root}/temperature/board", times, cols["temperature"], "board (TMP117) [°C]")
 
@@ -185,9 +188,9 @@ def record_run(rec: rr.RecordingStream, name: str, log: RunLog, params: TestbedP
     for entity, angle in (("hub", angle_exaggeration * hub), ("flexure", lever)):
         rec.send_columns(f"{root}/testbed/{entity}", indexes=[pose_times],
                          columns=rr.Transform3D.columns(quaternion=_z_quaternions(angle)))
-    if loadcell_nm is not None and fixture == "locked":
+    if loadcell_nm is not None:
         tau = loadcell_nm[idx]
-        tip = np.column_stack([lever_m * np.cos(lever), lever_m * np.sin(lever), np.full(len(idx), 0.01)])
+        tip = np.column_stack([lever_m * np.cos(lever), lever_m * np.sin(lever), np.full(len(idx), ARROW_HEIGHT_M)])
         normal = np.column_stack([-np.sin(lever), np.cos(lever), np.zeros(len(idx))])
         colours = np.where((tau >= 0)[:, None], [[220, 50, 40, 255]], [[40, 90, 220, 255]]).astype(np.uint8)
         rec.send_columns(f"{root}/testbed/torque", indexes=[pose_times],

@@ -13,6 +13,8 @@ from typing import Any
 
 import numpy as np
 
+VOLTAGE_COLUMNS = tuple(f"v{k}" for k in range(1, 9))  # the eight photo-reflector channels of the log format
+
 STANDARD_UNITS: dict[str, str] = {
     "time": "s",
     "tau_cmd": "N·m",
@@ -23,8 +25,16 @@ STANDARD_UNITS: dict[str, str] = {
     "force_loadcell": "N",
     "tau_ref": "N·m",
     "temperature": "°C",
-    **{f"v{k}": "V" for k in range(1, 9)},
+    **{name: "V" for name in VOLTAGE_COLUMNS},
 }
+
+
+def add_voltage_columns(columns: dict[str, np.ndarray], units: dict[str, str], voltages_v: np.ndarray) -> None:
+    """Add the photo-reflector channel voltages, an (N, channels) array [V], as the standard columns v1, v2, ..."""
+    volts = np.asarray(voltages_v, dtype=float)
+    for i in range(volts.shape[1]):
+        columns[f"v{i + 1}"] = volts[:, i].copy()
+        units[f"v{i + 1}"] = "V"
 
 
 @dataclass(frozen=True)

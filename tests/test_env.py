@@ -15,10 +15,10 @@ from controllers.feedback import make_feedback
 from controllers.loop import run_torque_loop
 from controllers.pi import PITorqueController
 from envs import ENV_ID, register_envs
-from envs.randomization import RANDOMIZED_FIELDS, field_range
+from envs.randomization import RANDOMIZED_FIELDS
 from envs.torque_tracking import OBSERVATION_NAMES, TorqueTrackingEnv
 from sensor.readout import factory_calibration
-from sim.params import TestbedParams
+from sim.params import TestbedParams, field_range
 from sim.plant import Plant
 
 ROOT = Path(__file__).resolve().parents[1]

@@ -116,9 +116,9 @@ def moved_enough(effect: str, before: dict[str, float], after: dict[str, float],
 
 
 def fit_candidate(surrogate: Surrogate, effect: str, theta: dict[str, float], free: tuple[str, ...],
-                  scales: dict[str, float], before: ChannelScore, config_gain: float, config_ic: float,
-                  baseline: ChannelScore, config_change: float = 0.0) -> CandidateScore:
-    """Fit one effect (with the free baseline parameters) and score it against ``before``."""
+                  scales: dict[str, float], before: ChannelScore, baseline: ChannelScore) -> CandidateScore:
+    """Fit one effect (with the free baseline parameters) and score it against ``before`` by the significance
+    rule of ``surrogate.config``."""
     import time
 
     start = time.perf_counter()
@@ -129,8 +129,9 @@ def fit_candidate(surrogate: Surrogate, effect: str, theta: dict[str, float], fr
     n_params = len(EFFECTS[effect].keys)
     delta, gains = compare(before, after, n_params)
     gains_of_baseline = {c: (before.rmse[c] - after.rmse[c]) / baseline.rmse[c] for c in gains}
-    passes = (delta < -config_ic and bool(gains) and max(gains_of_baseline.values()) >= config_gain
-              and moved_enough(effect, theta, outcome.theta, config_change))
+    cfg = surrogate.config
+    passes = (delta < -cfg.min_ic_drop and bool(gains) and max(gains_of_baseline.values()) >= cfg.min_relative_gain
+              and moved_enough(effect, theta, outcome.theta, cfg.min_parameter_change))
     return CandidateScore(effect, outcome, after, delta, gains, passes, time.perf_counter() - start)
 
 
@@ -142,9 +143,7 @@ def run_round(surrogate: Surrogate, candidates: list[str], theta: dict[str, floa
               scales: dict[str, float], before: ChannelScore, baseline: ChannelScore,
               pool: ProcessPoolExecutor | None) -> list[CandidateScore]:
     """Fit and score every candidate (in ``pool`` if given), best ΔBIC first."""
-    cfg = surrogate.config
-    args = [(effect, theta, free, scales, before, cfg.min_relative_gain, cfg.min_ic_drop, baseline,
-             cfg.min_parameter_change) for effect in candidates]
+    args = [(effect, theta, free, scales, before, baseline) for effect in candidates]
     if pool is None:
         scores = [fit_candidate(surrogate, *a) for a in args]
     else:

@@ -35,6 +35,7 @@ from sim.discrepancy.effects import EFFECTS
 from sim.discrepancy.rig import AddedEffect, Rig, rig_from_dict
 from sim.discrepancy.simulate import run_rigid, run_testbed
 from sim.logio import SlideRunLog
+from sim.params import TestbedParams, field_range
 from sim.runlog import RunLog
 
 TAU_SENSOR_NOISE_NM = 5e-3  # assumed: calibrated optical sensor, white noise std at 1 kHz
@@ -66,7 +67,7 @@ BASELINE_SLIDE_RIG = {"model": "rigid-joint", "joint": "slide", "mass_kg": 2.0, 
 
 def baseline_rig(experiment: str, overrides: dict[str, dict[str, float]] | None = None) -> Rig:
     """The baseline rig description of an experiment: the testbed (``sim.params`` defaults, or ``overrides`` in the
-    ``--params`` schema, e.g. ``{"friction": {"load_friction_coefficient": 0.05}}``), or the slide stage."""
+    ``--params`` schema, e.g. ``{"friction": {"load_friction_coefficient": 0.1}}``), or the slide stage."""
     if experiment == "slide":
         if overrides:
             raise ValueError("overrides apply to the testbed's parameters, not the slide stage")
@@ -90,16 +91,16 @@ BASELINE_RANGES: dict[tuple[str, str], tuple[float, float]] = {
     # N·m·s/rad: the assumed 0.02 N·m·s/rad of sim.params, halved to doubled
     ("friction", "viscous_nms_per_rad"): (0.01, 0.04),
     # [1] 1 - η of one planetary stage of catalogue efficiency 0.85-0.98 (identify_defaults: 0.03, 0.05;
-    # sim.params default 0.1)
+    # sim.params default 0.05, before 2026-11-23 0.1)
     ("friction", "load_friction_coefficient"): (0.02, 0.15),
     # 1/(N·m): the whole valid range of sim.params; it acts only in controllers.motor_driver (closed-loop runs of
     # experiments.*), not in sim.plant, so these open-loop/PI logs do not depend on it (drawn to show that)
-    ("motor", "torque_saturation_per_nm"): (0.0, 0.025),
-    # rad: 0.5 mrad (the grid-best of identify_defaults) to 3.5 mrad (sim.params default, 0.2°)
+    ("motor", "torque_saturation_per_nm"): field_range(TestbedParams(), "motor", "torque_saturation_per_nm"),
+    # rad: 0.5 mrad (identify_defaults' grid-best, the sim.params default) to 3.5 mrad (0.2°, the default before)
     ("backlash", "width_rad"): (0.5e-3, 3.5e-3),
 }
-# the parameter set experiments/identify_defaults.py prefers against the paper's Tables VI-VII (sim.params,
-# BacklashParams.width_rad source); a baseline the analysis must handle as well as the defaults
+# the parameter set experiments/identify_defaults.py prefers against the paper's Tables VI-VII; the sim.params
+# defaults since 2026-11-23, kept explicit so its tests still hold it if the defaults move again
 GRID_BEST_OVERRIDES: dict[str, dict[str, float]] = {
     "friction": {"coulomb_torque_nm": 0.09, "load_friction_coefficient": 0.05},
     "motor": {"torque_saturation_per_nm": 0.015}, "backlash": {"width_rad": 0.5e-3}}
@@ -122,16 +123,17 @@ def random_baseline_overrides(seed: int) -> dict[str, dict[str, float]]:
 # An effect the baseline already carries (friction levels, viscous, load-dependent friction, presliding,
 # backlash, dead time) is changed *relative to the rig's own value*: a factor drawn away from 1 (up or down)
 # by at least the low bound, so that a hidden change is a real one on any baseline (docs/discrepancy.md,
-# "Synthetic logs"). The factors reproduce, on the default rig, the absolute ranges the sweep was tuned on.
+# "Synthetic logs"). The factors reproduce, on the defaults before 2026-11-23 (load friction 0.1, backlash
+# 3.5 mrad), the absolute ranges the sweep was tuned on.
 COULOMB_UP, COULOMB_DOWN = (1.244, 1.389), (0.5, 0.778)  # x F_c (0.112-0.125, 0.045-0.07 N·m at 0.09)
 COULOMB_BELOW_BREAKAWAY = 0.97  # a raised Coulomb level stays below 0.97 F_s (else it is drawn lower instead)
 VISCOUS_UP, VISCOUS_DOWN = (2.0, 3.0), (0.2, 0.4)  # x σ2
 BREAKAWAY_UP = (1.308, 1.923)  # x F_s (0.17-0.25 N·m at 0.13)
 STRIBECK_VELOCITY_SPAN = (0.4, 2.0)  # x v_s (0.02-0.1 rad/s at 0.05); F_s already changes by >= 31 %
-LOAD_COEFFICIENT_UP, LOAD_COEFFICIENT_DOWN = (1.5, 2.0), (0.3, 0.6)  # x μ (0.15-0.2, 0.03-0.06 at 0.1)
+LOAD_COEFFICIENT_UP, LOAD_COEFFICIENT_DOWN = (1.5, 2.0), (0.3, 0.6)  # x μ (0.15-0.2, 0.03-0.06 at the former 0.1)
 LOAD_COEFFICIENT_IF_NONE = (0.05, 0.15)  # [1] absolute, for a baseline without load-dependent friction
 PRESLIDING_UP = (2.0, 4.0)  # x σ0, stiffer only (4000-8000 N·m/rad at 2000); see draw_effect
-BACKLASH_UP, BACKLASH_DOWN = (1.714, 2.857), (0.2857, 0.5714)  # x width (6-10, 1-2 mrad at 3.5 mrad)
+BACKLASH_UP, BACKLASH_DOWN = (1.714, 2.857), (0.2857, 0.5714)  # x width (6-10, 1-2 mrad at the former 3.5 mrad)
 EXTRA_DELAY_S = (1.5e-3, 5.5e-3)  # [s] dead time added to the rig's (2-6 ms at the default 0.5 ms)
 
 

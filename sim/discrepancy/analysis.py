@@ -225,7 +225,9 @@ def analyse(log: RunLog, rig: Rig, config: AnalysisConfig | None = None, *, prog
         "candidates": [[s.to_dict() for s in scores] for scores in rounds],
         "significance_rule": {"min_ic_drop": config.min_ic_drop, "min_relative_gain": config.min_relative_gain,
                               "min_parameter_change": config.min_parameter_change,
-                              "criterion": "held-out BIC over independent samples (x 2 f_c / f_s)"},
+                              "min_consistency_t": config.min_consistency_t,
+                              "criterion": "held-out BIC over independent samples (x 2 f_c / f_s) and a "
+                                           "Diebold-Mariano test of the held-out improvement"},
         "config": config.to_dict(),
         "timings_s": timings,
     }

@@ -77,7 +77,7 @@ def fit_keys(surrogate: Surrogate, theta0: dict[str, float], keys: tuple[str, ..
              starts: list[dict[str, float]] | None = None) -> FitOutcome:
     """Least squares of ``keys`` from the best of ``starts`` (each a partial theta) on the fit part."""
     data = surrogate.data
-    decimation = max(1, int(1.0 / data.band_fraction))
+    decimation = data.decimation
     mask = data.fit
     evaluations = 0
 

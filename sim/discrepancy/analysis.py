@@ -191,7 +191,7 @@ def analyse(log: RunLog, rig: Rig, config: AnalysisConfig | None = None, *, prog
                 gain=best.gains[channel],
                 evidence=_evidence(best, surrogate, current, channel)))
             _progress(f"found {best.effect} (held-out {channel} RMSE -{100 * best.gains[channel]:.1f} %, "
-                      f"ΔBIC {best.delta_bic:.1f})", progress)
+                      f"ΔBIC {best.delta_bic:.1f}, consistency t {best.consistency_t:.2f})", progress)
             current, current_score = best.fit.theta, best.score
             candidates = [c for c in candidates if c != best.effect]
     finally:
@@ -251,6 +251,7 @@ def _evidence(best: CandidateScore, surrogate: Surrogate, theta: dict[str, float
                                   if s.name == wanted), None)
     return {"signature": wanted, "channel": sig.channel if sig else channel,
             "correlation_before": sig.correlation if sig else None, "delta_bic": best.delta_bic,
+            "consistency_t": best.consistency_t,
             "gains_by_channel": best.gains}
 
 

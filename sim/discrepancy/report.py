@@ -34,7 +34,8 @@ def format_result(result: DiscrepancyResult) -> str:
             lines.append(f"  {i}. {f.effect}: {params}")
             lines.append(f"     held-out RMSE {f.rmse_heldout_before:.4g} -> {f.rmse_heldout_after:.4g} "
                          f"({100 * f.gain:.1f} % better); evidence: '{f.evidence['signature']}' in the {ch} residual "
-                         f"(correlation {f.evidence['correlation_before'] or 0:+.3f}), ΔBIC {f.evidence['delta_bic']:.1f}")
+                         f"(correlation {f.evidence['correlation_before'] or 0:+.3f}), ΔBIC {f.evidence['delta_bic']:.1f}, "
+                         f"consistency t {f.evidence['consistency_t']:.2f}")
     lines.append("The log cannot reveal:")
     for name, why in b["not_identifiable"].items():
         lines.append(f"  {name}: {why}")

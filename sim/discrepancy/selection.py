@@ -21,7 +21,8 @@ accepted only if **all four** hold:
    ``d`` over lags up to ``consistency_lag_s``. Rule 1 counts the decimated samples as independent; a residual
    concentrated at a few motion reversals (the free swing's, where a 16-bit encoder count is of the order of
    the presliding displacement) makes n far smaller in effect, and a curve fitted to those events passes
-   rule 1 with a t of only 1-2.3 (measured on baseline logs), whereas hidden effects give t >= 2.7.
+   rule 1 with a t of only 1.0-2.3 (measured on baseline logs), whereas hidden effects gave 2.48 and above
+   (most above 3.5; docs/discrepancy.md, step 5).
 
 Rounds repeat with the extended model until no candidate passes; none passing at all is the verdict
 "no significant discrepancy". Candidate fits of a round run in parallel processes (``config.workers``).

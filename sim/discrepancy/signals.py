@@ -60,8 +60,8 @@ class AnalysisConfig:
     min_consistency_t : float
         Significance rule, fourth part: the Diebold-Mariano statistic of the held-out improvement must reach
         this [1]. 2.33: one-sided 1 % (normal quantile). Measured on 10 s logs: baseline logs' spurious best
-        candidates 1.0-2.3 (the free swing's reversal residual: <= 1.9), hidden effects >= 2.7 (Stribeck, whose
-        evidence also sits at the reversals), most above 4.
+        candidates 1.0-2.3 (the free swing's reversal residual: <= 1.9), hidden effects 2.48 and above (Stribeck,
+        whose evidence also sits at the reversals), most above 3.5.
     consistency_lag_s : float
         Lag window of the Newey-West variance in that statistic [s]. 0.2 s: a residual event at a motion
         reversal spreads over about ±60 ms after the 25 Hz filter; the window covers it with margin.

@@ -30,7 +30,7 @@ import numpy as np
 from controllers.admittance import AdmittanceController
 from controllers.feedback import make_feedback
 from controllers.loop import run_admittance_loop
-from experiments.common import add_experiment_args, load_params_arg, record_rerun, save_figure, write_json
+from experiments.common import add_experiment_args, load_params_arg, record_rerun, save_figure, write_outputs
 from sim.params import TestbedParams
 from sim.plant import Plant
 from sim.runlog import RunLog
@@ -225,11 +225,7 @@ def main(argv: list[str] | None = None) -> None:
     print("running the slow and fast pushes (progress on stderr) ...", file=sys.stderr)
     result = run_admittance(params, args.seed, args.duration, progress=True)
     print(format_result(result))
-    if args.json:
-        write_json(args.json, result.to_dict())
-        print(f"wrote {args.json}")
-    if args.plot:
-        print(f"figure: {plot_admittance(result, args.plot)}")
+    write_outputs(args, result.to_dict(), lambda directory: plot_admittance(result, directory))
     record_rerun(args, result.logs(), params)
 
 

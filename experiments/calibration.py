@@ -17,7 +17,7 @@ from typing import Any
 
 import numpy as np
 
-from experiments.common import add_params_arg, add_rerun_args, load_params_arg, record_log, record_rerun, write_json
+from experiments.common import add_params_arg, add_rerun_args, load_params_arg, record_log, record_rerun, write_outputs
 from sensor.evaluation import SensorEvaluation, evaluate_sensor
 from sim.params import TestbedParams
 
@@ -147,9 +147,7 @@ def main(argv: list[str] | None = None) -> int:
     sel = result.evaluation.gamma_selection
     print(f"\nQP: gamma = {sel.gamma:g} chosen by RMSE^2 + {sel.lambda_weight:g} Var(quiet); "
           f"{result.evaluation.qp.diagnostics.n_active_constraints} active error bounds")
-    if args.json:
-        write_json(args.json, {"rows": result.rows, **{k: v for k, v in result.to_dict().items() if k != "rows"}})
-        print(f"JSON written to {args.json}")
+    write_outputs(args, {"rows": result.rows, **{k: v for k, v in result.to_dict().items() if k != "rows"}})
     for p in result.figures:
         print(f"figure: {p}")
     ev = result.evaluation

@@ -45,6 +45,18 @@ def write_json(path: Path, data: dict[str, Any]) -> None:
     path.write_text(json.dumps(_jsonable(data), indent=2, ensure_ascii=False) + "\n")
 
 
+def write_outputs(args: argparse.Namespace, data: dict[str, Any], plot=None) -> None:
+    """The CLIs' --json and --plot: write ``data`` as JSON and say where; call ``plot(directory)`` (returning a
+    figure path or a list of them) and print each figure's path. Nothing for an option not given."""
+    if getattr(args, "json", None):
+        write_json(args.json, data)
+        print(f"wrote {args.json}")
+    if plot is not None and getattr(args, "plot", None):
+        paths = plot(args.plot)
+        for path in paths if isinstance(paths, (list, tuple)) else [paths]:
+            print(f"figure: {path}")
+
+
 FIGURE_DPI = 120  # [dots per inch] of the experiments' PNG figures
 
 

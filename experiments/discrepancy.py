@@ -21,7 +21,7 @@ import argparse
 import sys
 from pathlib import Path
 
-from experiments.common import add_rerun_args, record_rerun, write_json
+from experiments.common import add_rerun_args, record_rerun, write_outputs
 from sim.discrepancy.analysis import DiscrepancyResult, analyse
 from sim.discrepancy.report import format_result, plot_result
 from sim.discrepancy.rig import Rig, RigError, load_rig, save_rig
@@ -101,12 +101,7 @@ def main(argv: list[str] | None = None) -> None:
     except (RigError, ValueError) as exc:
         parser.error(str(exc))
     print(format_result(result))
-    if args.json:
-        write_json(args.json, result.to_dict())
-        print(f"wrote {args.json}")
-    if args.plot:
-        for path in plot_result(result, args.plot):
-            print(f"figure: {path}")
+    write_outputs(args, result.to_dict(), lambda directory: plot_result(result, directory))
     if args.save_rig:
         header = (f"Extended rig written by experiments.discrepancy from {args.log.name} and {args.rig.name}.\n"
                   f"Findings: {', '.join(result.found) or 'none'}.")

@@ -16,7 +16,7 @@ from pathlib import Path
 
 import numpy as np
 
-from experiments.common import add_params_arg, add_rerun_args, load_params_arg, record_rerun, save_figure, write_json
+from experiments.common import add_params_arg, add_rerun_args, load_params_arg, record_rerun, save_figure, write_outputs
 from sim.params import TestbedParams
 from sim.plant import Plant
 from sim.run import run_open_loop
@@ -120,11 +120,7 @@ def main(argv: list[str] | None = None) -> None:
     params = load_params_arg(parser, args)
     result = run_open_loop_step(params, tuple(args.steps), args.duration)
     print(format_result(result))
-    if args.json:
-        write_json(args.json, result.to_dict())
-        print(f"wrote {args.json}")
-    if args.plot:
-        print(f"figure: {plot_result(result, args.plot)}")
+    write_outputs(args, result.to_dict(), lambda directory: plot_result(result, directory))
     record_rerun(args, {f"open-loop step {s.command_nm:g} N·m": g for s, g in zip(result.steps, result.logs)}, params)
 
 

@@ -21,7 +21,7 @@ from pathlib import Path
 from typing import Any
 
 from experiments.admittance import plot_admittance, run_admittance
-from experiments.common import add_experiment_args, format_rows, load_params_arg, paper_row, record_rerun, write_json
+from experiments.common import add_experiment_args, format_rows, load_params_arg, paper_row, record_rerun, write_outputs
 from experiments.sinusoid import plot_sinusoid, run_sinusoid
 from experiments.step import plot_step, run_step
 from sim.characterize import measure_breakaway
@@ -187,9 +187,7 @@ def main(argv: list[str] | None = None) -> None:
         print(f"  [{'x' if b.reproduced else ' '}] {b.claim}: {b.simulated}")
     for m in result.missing:
         print(f"not run (absent): {m}")
-    if args.json:
-        write_json(args.json, result.to_dict())
-        print(f"wrote {args.json}")
+    write_outputs(args, result.to_dict())
     if args.plot:
         report = args.plot / "paper_report.md"
         report.write_text(markdown_report(result, args.plot))

@@ -14,7 +14,7 @@ from pathlib import Path
 from typing import Any
 
 from experiments.common import (add_params_arg, add_rerun_args, load_params_arg, record_rerun, rerun_requested,
-                                write_json)
+                                write_outputs)
 from models.gim8108_testbed.derived import FIXTURES, derive, lumped_modes_hz, physics_timestep
 from sim.characterize import linearizable_plant, linearized_modes, measure_backlash, measure_breakaway
 from sim.params import TestbedParams
@@ -133,9 +133,7 @@ def main(argv: list[str] | None = None) -> None:
     params = load_params_arg(parser, args)
     card = run_plant_card(params, keep_logs=rerun_requested(args))
     print(format_card(card))
-    if args.json:
-        write_json(args.json, card.to_dict())
-        print(f"\nwrote {args.json}")
+    write_outputs(args, card.to_dict())
     record_rerun(args, card.logs, params)
 
 

@@ -33,7 +33,7 @@ from controllers.loop import run_torque_loop
 from controllers.pi import PITorqueController
 from controllers.tracking import TrackingError, tracking_error
 from experiments.common import (add_experiment_args, feedback_kinds, format_rows, load_params_arg,
-                                loadcell_torque_nm, paper_row, record_rerun, save_figure, write_json)
+                                loadcell_torque_nm, paper_row, record_rerun, save_figure, write_outputs)
 from sim.params import TestbedParams
 from sim.plant import Plant
 from sim.run import run_open_loop
@@ -196,11 +196,7 @@ def main(argv: list[str] | None = None) -> None:
         print(f"  {c.waveform.name}, {c.feedback}: positive share of the output's impulse "
               f"{c.positive_share:.2f} (0.5 = symmetric; the paper reports one-sided actuation at low torque "
               f"under current feedback)")
-    if args.json:
-        write_json(args.json, result.to_dict())
-        print(f"wrote {args.json}")
-    if args.plot:
-        print(f"figure: {plot_sinusoid(result, args.plot)}")
+    write_outputs(args, result.to_dict(), lambda directory: plot_sinusoid(result, directory))
     record_rerun(args, result.logs(), params)
 
 

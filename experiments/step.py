@@ -37,7 +37,7 @@ from controllers.loop import run_torque_loop
 from controllers.pi import PITorqueController
 from controllers.tracking import TrackingError, tracking_error
 from experiments.common import (add_experiment_args, feedback_kinds, format_rows, load_params_arg,
-                                loadcell_torque_nm, paper_row, record_rerun, save_figure, write_json)
+                                loadcell_torque_nm, paper_row, record_rerun, save_figure, write_outputs)
 from sim.params import TestbedParams
 from sim.plant import Plant
 from sim.runlog import RunLog
@@ -247,11 +247,7 @@ def main(argv: list[str] | None = None) -> None:
     result = run_step(params, feedback_kinds(args.feedback), args.seed, args.duration, progress=True)
     print(format_rows("Step and disturbance tests, locked lever: load-cell torque vs reference (Table VI)",
                       result.rows()))
-    if args.json:
-        write_json(args.json, result.to_dict())
-        print(f"wrote {args.json}")
-    if args.plot:
-        print(f"figure: {plot_step(result, args.plot)}")
+    write_outputs(args, result.to_dict(), lambda directory: plot_step(result, directory))
     record_rerun(args, result.logs(), params)
 
 

@@ -19,7 +19,7 @@ from typing import Any
 import numpy as np
 
 from experiments.calibration import comparison_rows, format_rows
-from experiments.common import add_params_arg, add_rerun_args, load_params_arg, record_log, record_rerun, write_json
+from experiments.common import add_params_arg, add_rerun_args, load_params_arg, record_log, record_rerun, write_outputs
 from sensor.calibration import FS_NM
 from sensor.chamber import TemperatureRecord, chamber_run, drift_run
 from sensor.drift_fit import DriftFit, DriftModelComparison, compare_drift_models
@@ -143,9 +143,7 @@ def main(argv: list[str] | None = None) -> int:
     for name, fit in result.models.fits.items():
         print(f"  {name:<9} RMS {fit.rmse_nm:.5f} N·m, max {fit.max_abs_error_nm:.5f} N·m, "
               f"{len(fit.coefficients)} constants")
-    if args.json:
-        write_json(args.json, result.to_dict())
-        print(f"JSON written to {args.json}")
+    write_outputs(args, result.to_dict())
     for p in result.figures:
         print(f"figure: {p}")
     records = {"chamber": result.chamber, **{f"drift test {load:g} N·m": r for load, r in result.drift_tests.items()}}

@@ -55,7 +55,7 @@ from scipy.optimize import minimize
 from controllers.pi import PAPER_KI_PER_S, PAPER_KP, PITorqueController
 from controllers.tracking import tracking_error
 from envs.torque_tracking import OBSERVATION_NAMES, TorqueTrackingEnv
-from experiments.common import add_experiment_args, load_params_arg, record_rerun, save_figure, write_json
+from experiments.common import add_experiment_args, load_params_arg, record_rerun, save_figure, write_outputs
 from sim.params import TestbedParams
 from sim.runlog import RunLog
 
@@ -345,11 +345,7 @@ def main(argv: list[str] | None = None) -> None:
     result = tune(params, args.feedback, args.damping, duration, args.max_evaluations, args.seed, progress=True,
                   gain_margin=args.gain_margin)
     print(format_result(result))
-    if args.json:
-        write_json(args.json, result.to_dict())
-        print(f"wrote {args.json}")
-    if args.plot:
-        print(f"figure: {plot_tune(result, args.plot)}")
+    write_outputs(args, result.to_dict(), lambda directory: plot_tune(result, directory))
     record_rerun(args, lambda: tune_logs(result, params), params)
 
 

@@ -114,13 +114,15 @@ def consistency_t(before: ChannelScore, after: ChannelScore, lags: int) -> float
         mean_square = float(np.mean(b[ok] ** 2)) if ok.any() else 0.0
         if mean_square <= 0.0:
             continue
-        term = np.where(ok, (np.where(ok, b, 0.0) ** 2 - np.where(ok, a, 0.0) ** 2) / mean_square, 0.0)
+        term = (np.where(ok, b, 0.0) ** 2 - np.where(ok, a, 0.0) ** 2) / mean_square  # 0 where a sample does not count
         drop = term if drop is None else drop + term
     if drop is None or len(drop) < 2:
         return float("nan")
     spread = math.sqrt(max(long_run_variance(drop, lags), 0.0) / len(drop))
     mean = float(drop.mean())
-    return mean / spread if spread > 0 else math.copysign(math.inf, mean) if mean else 0.0
+    if spread > 0:
+        return mean / spread
+    return math.copysign(math.inf, mean) if mean else 0.0
 
 
 def compare(before: ChannelScore, after: ChannelScore, n_params: int) -> tuple[float, dict[str, float]]:

@@ -16,7 +16,7 @@ from controllers.motor_driver import CurrentToTorqueMap
 from controllers.pi import PITorqueController
 from sensor.photoreflector import CHANNELS
 from sim.plant import SIGNAL_UNITS, Plant
-from sim.run import Progress
+from sim.run import Progress, signal_columns
 from sim.runlog import RunLog, add_voltage_columns
 
 PROGRESS_EVERY_TICKS = 1000
@@ -31,10 +31,6 @@ def apply_hub_torque(plant: Plant, tau_nm: float) -> None:
     ``xfrc_applied`` of the body named 'output', which ``Plant.reset`` clears.
     """
     plant.data.body("output").xfrc_applied[5] = tau_nm
-
-
-def _columns(names: list[str], out: np.ndarray, extra: dict[str, np.ndarray], times: np.ndarray):
-    return {"time": times, **{name: out[:, i].copy() for i, name in enumerate(names)}, **extra}
 
 
 def _check_profile(name: str, values, n: int) -> np.ndarray:
@@ -79,8 +75,7 @@ def run_torque_loop(plant: Plant, controller: PITorqueController, feedback: Torq
     n = len(tau_ref)
     tau_ext = _check_profile("tau_ext_nm", tau_ext_nm, n)
     tau_hub = _check_profile("tau_hub_nm", tau_hub_nm, n)
-    names = list(SIGNAL_UNITS)
-    out, times, measured = np.empty((n, len(names))), np.empty(n), np.empty(n)
+    out, times, measured = np.empty((n, len(SIGNAL_UNITS))), np.empty(n), np.empty(n)
     bar = Progress(progress_label, n, plant.params.simulation.control_period_s) if progress_label else None
     use_hub = bool(np.any(tau_hub))
     delivered = CurrentToTorqueMap.from_params(plant.params).delivered_nm
@@ -104,7 +99,7 @@ def run_torque_loop(plant: Plant, controller: PITorqueController, feedback: Torq
         extra["tau_sensor"] = measured.copy()
         units["tau_sensor"] = "N·m"
         add_voltage_columns(extra, units, volts)
-    return RunLog(_columns(names, out, extra, times), units,
+    return RunLog(signal_columns(out, times, extra), units,
                   {"fixture": plant.fixture, "feedback": feedback.kind, "physics_timestep_s": plant.timestep_s,
                    "lever_length_m": plant.params.lever.length_m,
                    "torque_saturation_per_nm": plant.params.motor.torque_saturation_per_nm, **(meta or {})})
@@ -132,8 +127,7 @@ def run_admittance_loop(plant: Plant, controller: AdmittanceController, feedback
         ``omega_ref`` [rad/s] of the virtual dynamics, and in sensor mode ``tau_sensor`` and ``v1`` ... ``v8`` [V].
     """
     n = int(hand.n_ticks)
-    names = list(SIGNAL_UNITS)
-    out, times = np.empty((n, len(names))), np.empty(n)
+    out, times = np.empty((n, len(SIGNAL_UNITS))), np.empty(n)
     measured, hand_torque, theta_ref, omega_ref = (np.empty(n) for _ in range(4))
     bar = Progress(progress_label, n, plant.params.simulation.control_period_s) if progress_label else None
     delivered = CurrentToTorqueMap.from_params(plant.params).delivered_nm
@@ -157,6 +151,6 @@ def run_admittance_loop(plant: Plant, controller: AdmittanceController, feedback
         extra["tau_sensor"] = measured.copy()
         units["tau_sensor"] = "N·m"
         add_voltage_columns(extra, units, volts)
-    return RunLog(_columns(names, out, extra, times), units,
+    return RunLog(signal_columns(out, times, extra), units,
                   {"fixture": plant.fixture, "feedback": feedback.kind, "physics_timestep_s": plant.timestep_s,
                    "lever_length_m": plant.params.lever.length_m, **(meta or {})})

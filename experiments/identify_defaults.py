@@ -83,11 +83,6 @@ def run_candidate(params: TestbedParams, seed: int = 0,
     return step.rows() + sine.rows(), logs
 
 
-def table_rows(params: TestbedParams, seed: int = 0) -> list[dict]:
-    """The Table VI-VII rows (and the step/disturbance text rows) for one parameter set."""
-    return run_candidate(params, seed)[0]
-
-
 def score(rows: list[dict]) -> tuple[float, float]:
     """(RMS, max) over the fitted figures of |ln(sim / paper)|."""
     logs = np.array([math.log(r["ratio"]) for r in rows if r["table"] in FIT_TABLES and r["ratio"]])

@@ -295,7 +295,7 @@ class PhotoReflectorArray:
 
     def _filter(self, v: np.ndarray) -> np.ndarray:
         """First-order sensing chain, exact for a signal held over each sample period."""
-        if self._alpha < 1e-12:  # the chain settles within a sample: nothing to carry
+        if not self._filtering:  # the chain settles within a sample: nothing to carry
             self._filter_state = v[-1].tolist()
             return v
         out = np.empty_like(v)

@@ -17,7 +17,7 @@ import numpy as np
 
 from sensor.calibration import Calibration
 from sensor.evaluation import calibrate
-from sensor.photoreflector import PhotoReflectorArray
+from sensor.photoreflector import CHANNELS, PhotoReflectorArray
 from sensor.protocol import calibration_schedule, crosstalk_schedule, record
 from sim.params import TestbedParams
 
@@ -81,7 +81,7 @@ class TorqueSensorReadout:
     def reset(self) -> None:
         """Restart the noise sequence, the hysteresis and the sensing chain (same seed, same run)."""
         self._array = PhotoReflectorArray(self.params, seed=self.seed)
-        self._voltages: list[float] = [math.nan] * 8
+        self._voltages: list[float] = [math.nan] * CHANNELS
 
     @property
     def voltages_v(self) -> np.ndarray:

@@ -10,6 +10,7 @@ import numpy as np
 
 from sim.params import TestbedParams
 from sim.plant import SIGNAL_UNITS, Plant
+from sim.run import signal_columns
 from sim.runlog import RunLog
 
 # Paper Sec. V: breakaway = smallest command at which the motor velocity first exceeds a small threshold
@@ -39,9 +40,8 @@ class _TickRecorder:
         if not self.keep:
             return None
         plant = self.plant
-        columns = {"time": self.times[:n_ticks].copy(),
-                   **{name: self.rows[:n_ticks, i].copy() for i, name in enumerate(SIGNAL_UNITS)}}
-        return RunLog(columns, {"time": "s", **SIGNAL_UNITS},
+        return RunLog(signal_columns(self.rows[:n_ticks], self.times[:n_ticks].copy()),
+                      {"time": "s", **SIGNAL_UNITS},
                       {"fixture": plant.fixture, "lever_length_m": plant.params.lever.length_m,
                        "physics_timestep_s": plant.timestep_s, "substeps": plant.n_substeps, **meta})
 

@@ -126,7 +126,7 @@ class Plant:
         self._set_load_friction(0.0)
         mujoco.mj_forward(self.model, self.data)
         self.thermal = ThermalState(self.params.thermal, ambient_c)
-        self._tmp117_source, self._tmp117_c = None, math.nan  # see tmp117_temperature_c
+        self._tmp117_c = self.thermal.tmp117_reading_c()  # quantised once per thermal update, not per read
         self._current_sq_sum = 0.0
         self._ticks = 0
         self._tau_cmd = 0.0
@@ -166,6 +166,7 @@ class Plant:
         """One thermal update with the mean copper loss of its control ticks."""
         copper_w = self._winding_resistance_ohm * self._current_sq_sum / self._thermal_ticks
         self.thermal.advance(self._thermal_period_s, copper_w)
+        self._tmp117_c = self.thermal.tmp117_reading_c()
         self._current_sq_sum = 0.0
 
     def _divergence_message(self, t_expected: float) -> str:
@@ -268,12 +269,7 @@ class Plant:
     @property
     def tmp117_temperature_c(self) -> float:
         """Board temperature as the on-board TMP117 reports it [°C]."""
-        # Quantised once per thermal update (every thermal.update_period_s), not per read: the state's
-        # temperature array is replaced, never modified in place, when it moves.
-        temperatures = self.thermal.temperatures_c
-        if temperatures is not self._tmp117_source:
-            self._tmp117_source, self._tmp117_c = temperatures, self.thermal.tmp117_reading_c()
-        return self._tmp117_c
+        return self._tmp117_c  # quantised at each thermal update (every thermal.update_period_s)
 
     @property
     def motor_temperature_c(self) -> float:

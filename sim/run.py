@@ -14,6 +14,12 @@ from sim.runlog import RunLog
 PROGRESS_MIN_TICKS = 20_000  # report progress only on runs longer than 20 s of simulated time
 
 
+def signal_columns(rows: np.ndarray, times: np.ndarray, extra: dict[str, np.ndarray] | None = None) -> dict:
+    """Run-log columns from per-tick ``Plant.read_signals`` rows (``SIGNAL_UNITS`` order), their ``times`` [s]
+    and ``extra`` columns."""
+    return {"time": times, **{name: rows[:, i].copy() for i, name in enumerate(SIGNAL_UNITS)}, **(extra or {})}
+
+
 class Progress:
     """Prints 'label: 40 % (4.0 of 10.0 s simulated, 31000 ticks/s)' to a stream at most once per second."""
 
@@ -61,8 +67,7 @@ def run_open_loop(plant: Plant, tau_cmd_nm: np.ndarray, tau_ext_nm: np.ndarray |
         raise ValueError(f"tau_ext_nm has shape {tau_ext_nm.shape}; expected ({n},) like tau_cmd_nm")
     if not (np.isfinite(tau_cmd_nm).all() and np.isfinite(tau_ext_nm).all()):
         raise ValueError("tau_cmd_nm and tau_ext_nm must be finite")
-    names = list(SIGNAL_UNITS)
-    out = np.empty((n, len(names)))
+    out = np.empty((n, len(SIGNAL_UNITS)))
     times = np.empty(n)
     bar = Progress("simulating", n, plant.params.simulation.control_period_s) if (
         progress and n >= PROGRESS_MIN_TICKS) else None
@@ -72,8 +77,7 @@ def run_open_loop(plant: Plant, tau_cmd_nm: np.ndarray, tau_ext_nm: np.ndarray |
         plant.read_signals(out[k])
         if bar is not None and k % 1000 == 999:
             bar.update(k + 1)
-    columns = {"time": times, **{name: out[:, i].copy() for i, name in enumerate(names)},
-               "tau_ext": tau_ext_nm.copy()}
+    columns = signal_columns(out, times, {"tau_ext": tau_ext_nm.copy()})
     units = {"time": "s", **SIGNAL_UNITS, "tau_ext": "N·m"}
     return RunLog(columns, units, {"fixture": plant.fixture, "physics_timestep_s": plant.timestep_s,
                                    "substeps": plant.n_substeps, **(meta or {})})

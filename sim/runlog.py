@@ -32,9 +32,9 @@ STANDARD_UNITS: dict[str, str] = {
 def add_voltage_columns(columns: dict[str, np.ndarray], units: dict[str, str], voltages_v: np.ndarray) -> None:
     """Add the photo-reflector channel voltages, an (N, channels) array [V], as the standard columns v1, v2, ..."""
     volts = np.asarray(voltages_v, dtype=float)
-    for i in range(volts.shape[1]):
-        columns[f"v{i + 1}"] = volts[:, i].copy()
-        units[f"v{i + 1}"] = "V"
+    for name, column in zip(VOLTAGE_COLUMNS, volts.T, strict=True):
+        columns[name] = column.copy()
+        units[name] = STANDARD_UNITS[name]
 
 
 @dataclass(frozen=True)

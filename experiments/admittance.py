@@ -30,7 +30,8 @@ import numpy as np
 from controllers.admittance import AdmittanceController
 from controllers.feedback import make_feedback
 from controllers.loop import run_admittance_loop
-from experiments.common import add_experiment_args, load_params_arg, record_rerun, save_figure, write_outputs
+from experiments.common import add_experiment_args, load_params_arg, record_rerun, write_outputs
+from sim.figures import save_figure
 from sim.params import TestbedParams
 from sim.plant import Plant
 from sim.runlog import RunLog

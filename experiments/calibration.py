@@ -15,10 +15,9 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-import numpy as np
-
 from experiments.common import add_params_arg, add_rerun_args, load_params_arg, record_log, record_rerun, write_outputs
 from sensor.evaluation import SensorEvaluation, evaluate_sensor
+from sim.figures import save_figure
 from sim.params import TestbedParams
 
 TABLE = "calibration"
@@ -84,7 +83,6 @@ def plot_calibration(ev: SensorEvaluation, out_dir: Path) -> list[Path]:
 
     from sensor import metrics
 
-    out_dir.mkdir(parents=True, exist_ok=True)
     paths = []
     rec = ev.calibration_record
     fig, ax = plt.subplots(1, 2, figsize=(11, 4))
@@ -95,7 +93,7 @@ def plot_calibration(ev: SensorEvaluation, out_dir: Path) -> list[Path]:
         ax[1].plot(rec.tau_reference_nm[::step], rec.voltages_v[::step, k], ".", ms=1, label=f"ch {k + 1}")
     ax[1].set(xlabel="torque [N·m]", ylabel="channel voltage [V]", title="channel responses")
     ax[1].legend(markerscale=8, fontsize=7, ncol=2)
-    paths.append(_save(fig, out_dir / "calibration_channels.png"))
+    paths.append(save_figure(fig, out_dir, "calibration_channels.png"))
 
     evr = ev.evaluation_record
     out = ev.qp.predict(evr.voltages_v)
@@ -108,7 +106,7 @@ def plot_calibration(ev: SensorEvaluation, out_dir: Path) -> list[Path]:
         ax[1].plot(bc.level_nm[bc.both], getattr(bc, f"{name}_error_nm")[bc.both], label=name)
     ax[1].set(xlabel="torque [N·m]", ylabel="branch error [N·m]", title="hysteresis branches")
     ax[1].legend()
-    paths.append(_save(fig, out_dir / "calibration_hysteresis.png"))
+    paths.append(save_figure(fig, out_dir, "calibration_hysteresis.png"))
 
     fig, ax = plt.subplots(1, 3, figsize=(14, 4))
     for axis, r in ev.crosstalk_records.items():
@@ -120,16 +118,8 @@ def plot_calibration(ev: SensorEvaluation, out_dir: Path) -> list[Path]:
         tau = cal.predict(res.voltages_v)
         a.plot(res.time_s, tau, lw=0.4)
         a.set(xlabel="time [s]", ylabel="torque [N·m]", title=f"{name}: no load, 3σ = {3 * tau.std(ddof=1):.4f} N·m")
-    paths.append(_save(fig, out_dir / "calibration_noise.png"))
+    paths.append(save_figure(fig, out_dir, "calibration_noise.png"))
     return paths
-
-
-def _save(fig, path: Path) -> Path:
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    import matplotlib.pyplot as plt
-    plt.close(fig)
-    return path
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -57,21 +57,6 @@ def write_outputs(args: argparse.Namespace, data: dict[str, Any], plot=None) -> 
             print(f"figure: {path}")
 
 
-FIGURE_DPI = 120  # [dots per inch] of the experiments' PNG figures
-
-
-def save_figure(fig, directory: Path, name: str) -> Path:
-    """Lay out a matplotlib figure, write it to ``directory / name`` (folders created), close it; the path."""
-    import matplotlib.pyplot as plt
-
-    fig.tight_layout()
-    directory.mkdir(parents=True, exist_ok=True)
-    path = directory / name
-    fig.savefig(path, dpi=FIGURE_DPI)
-    plt.close(fig)
-    return path
-
-
 # ---------------------------------------------------------------- closed-loop experiments (issue 4)
 FEEDBACK_CHOICES = ("current", "sensor", "both")
 

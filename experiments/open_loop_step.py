@@ -16,7 +16,8 @@ from pathlib import Path
 
 import numpy as np
 
-from experiments.common import add_params_arg, add_rerun_args, load_params_arg, record_rerun, save_figure, write_outputs
+from experiments.common import add_params_arg, add_rerun_args, load_params_arg, record_rerun, write_outputs
+from sim.figures import save_figure
 from sim.params import TestbedParams
 from sim.plant import Plant
 from sim.run import run_open_loop

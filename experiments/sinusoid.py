@@ -33,7 +33,8 @@ from controllers.loop import run_torque_loop
 from controllers.pi import PITorqueController
 from controllers.tracking import TrackingError, tracking_error
 from experiments.common import (add_experiment_args, feedback_kinds, format_rows, load_params_arg,
-                                loadcell_torque_nm, paper_row, record_rerun, save_figure, write_outputs)
+                                loadcell_torque_nm, paper_row, record_rerun, write_outputs)
+from sim.figures import save_figure
 from sim.params import TestbedParams
 from sim.plant import Plant
 from sim.run import run_open_loop

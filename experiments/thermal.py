@@ -24,6 +24,7 @@ from sensor.calibration import FS_NM
 from sensor.chamber import TemperatureRecord, chamber_run, drift_run
 from sensor.drift_fit import DriftFit, DriftModelComparison, compare_drift_models
 from sensor.readout import factory_calibration
+from sim.figures import save_figure
 from sim.params import TestbedParams
 
 DRIFT_TEST_LOADS_NM = (0.0, 10.0)  # paper Table V
@@ -100,7 +101,6 @@ def plot_thermal(result: ThermalExperiment, reference_c: float, out_dir: Path) -
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    out_dir.mkdir(parents=True, exist_ok=True)
     fig, ax = plt.subplots(1, 3, figsize=(15, 4))
     ch = result.chamber
     ax[0].plot(ch.tmp117_c, ch.tau_sensor_nm, ".", ms=1, color="0.6", label="chamber samples")
@@ -117,11 +117,7 @@ def plot_thermal(result: ThermalExperiment, reference_c: float, out_dir: Path) -
         a.plot(minutes, rec.tau_reference_nm, lw=0.8, color="k", label="MINI85")
         a.set(xlabel="time [min]", ylabel="torque [N·m]", title=f"one hour at {load:g} N·m")
         a.legend(fontsize=7)
-    fig.tight_layout()
-    path = out_dir / "thermal_drift.png"
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
-    return [path]
+    return [save_figure(fig, out_dir, "thermal_drift.png")]
 
 
 def main(argv: list[str] | None = None) -> int:

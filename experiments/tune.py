@@ -56,7 +56,8 @@ from scipy.optimize import minimize
 from controllers.pi import PAPER_KI_PER_S, PAPER_KP, PITorqueController
 from controllers.tracking import tracking_error
 from envs.torque_tracking import OBSERVATION_NAMES, TorqueTrackingEnv
-from experiments.common import add_experiment_args, load_params_arg, record_rerun, save_figure, write_outputs
+from experiments.common import add_experiment_args, load_params_arg, record_rerun, write_outputs
+from sim.figures import save_figure
 from sim.params import TestbedParams
 from sim.runlog import RunLog
 

@@ -7,6 +7,7 @@ from pathlib import Path
 import numpy as np
 
 from sim.discrepancy.analysis import DiscrepancyResult
+from sim.figures import save_figure
 
 SIGNATURES_SHOWN = 6  # strongest signatures listed in the text report
 
@@ -55,7 +56,6 @@ def plot_result(result: DiscrepancyResult, directory: Path) -> list[Path]:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    directory.mkdir(parents=True, exist_ok=True)
     paths = []
     channels = list(result.residuals_baseline)
     fig, axes = plt.subplots(len(channels), 1, figsize=(10, 2.6 * len(channels)), squeeze=False)
@@ -67,10 +67,7 @@ def plot_result(result: DiscrepancyResult, directory: Path) -> list[Path]:
         ax.legend(loc="upper right", fontsize=7)
     axes[-1, 0].set_xlabel("time [s]")
     fig.suptitle("Residuals (measured - model)")
-    fig.tight_layout()
-    paths.append(directory / "discrepancy_residuals.png")
-    fig.savefig(paths[-1], dpi=120)
-    plt.close(fig)
+    paths.append(save_figure(fig, directory, "discrepancy_residuals.png"))
 
     fig, ax = plt.subplots(figsize=(6, 3.5))
     for c in channels:
@@ -83,19 +80,13 @@ def plot_result(result: DiscrepancyResult, directory: Path) -> list[Path]:
     ax.set_ylabel("autocorrelation [1]")
     ax.set_title("Baseline residual autocorrelation (held out)")
     ax.legend()
-    fig.tight_layout()
-    paths.append(directory / "discrepancy_autocorrelation.png")
-    fig.savefig(paths[-1], dpi=120)
-    plt.close(fig)
+    paths.append(save_figure(fig, directory, "discrepancy_autocorrelation.png"))
 
     sigs = result.baseline["signatures"][:10]
     fig, ax = plt.subplots(figsize=(7, 3.5))
     ax.barh([f"{s['signature']} ({s['channel']})" for s in sigs][::-1], [s["correlation"] for s in sigs][::-1])
     ax.set_xlabel("correlation with the baseline residual [1]")
-    fig.tight_layout()
-    paths.append(directory / "discrepancy_signatures.png")
-    fig.savefig(paths[-1], dpi=120)
-    plt.close(fig)
+    paths.append(save_figure(fig, directory, "discrepancy_signatures.png"))
 
     if result.replay:
         r = result.replay
@@ -107,8 +98,5 @@ def plot_result(result: DiscrepancyResult, directory: Path) -> list[Path]:
         ax.set_ylabel(f"{r['signal']} [{r['unit']}]")
         ax.set_title(f"MuJoCo replay, windows of {r['window_s']} s from the measured state")
         ax.legend(markerscale=8)
-        fig.tight_layout()
-        paths.append(directory / "discrepancy_replay.png")
-        fig.savefig(paths[-1], dpi=120)
-        plt.close(fig)
+        paths.append(save_figure(fig, directory, "discrepancy_replay.png"))
     return paths

@@ -1,0 +1,19 @@
+"""Writing matplotlib figures: one resolution and one layout step for every PNG the project writes."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+FIGURE_DPI = 120  # [dots per inch] of the PNG figures
+
+
+def save_figure(fig, directory: Path, name: str) -> Path:
+    """Lay out a matplotlib figure, write it to ``directory / name`` (folders created), close it; the path."""
+    import matplotlib.pyplot as plt
+
+    fig.tight_layout()
+    directory.mkdir(parents=True, exist_ok=True)
+    path = directory / name
+    fig.savefig(path, dpi=FIGURE_DPI)
+    plt.close(fig)
+    return path

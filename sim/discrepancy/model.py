@@ -238,7 +238,7 @@ class Surrogate:
                 # physics step, so its mean over a control tick is σ1·(z_k - z_{k-1})/dt, centred half a sample
                 # before t_k; the balance compares every other term at t_k (filtered, centred derivatives), so
                 # the rate is the centred difference (with the one-sided one, a dead time 0.1 ms short and a
-                # Stribeck curve fitted to the half-sample lag of σ1·ż at reversals; measured, docs/discrepancy.md)
+                # Stribeck curve fitted to the half-sample lag of σ1·ż at reversals; measured, docs/discrepancy_limits.md)
                 zdot = np.gradient(z, d.dt)
                 return d.filt(sigma0 * z + sigma1 * zdot)
 

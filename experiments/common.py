@@ -140,7 +140,8 @@ def feedback_kinds(choice: str) -> tuple[str, ...]:
 # paper's Table VI: the sensor-feedback step errors are flat (0.0026, 0.0026, 0.0025 N·m) across step sizes, a
 # measurement floor; the simulated loop alone leaves ~0.0005 N·m, so sqrt(0.0026² - 0.0005²) / 0.1 m ≈ 0.025 N
 # (experiments/identify_defaults.py). That is 0.005 % of the SBA-50L's 500 N capacity, what a 24-bit
-# strain-gauge amplifier gives. Belongs in sim.params' loadcell group (owned elsewhere); kept here until then.
+# strain-gauge amplifier gives. Defined here, not in sim.params: it is added to the logged force after a run (the
+# plant's loop never sees it), and by the one function below.
 LOADCELL_READING_NOISE_N = 0.025
 LOADCELL_NOISE_STREAM = 0x10AD  # spawn key separating the load cell's noise from the sensor's for one seed
 

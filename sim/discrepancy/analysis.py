@@ -25,16 +25,19 @@ from sim.discrepancy.diagnostics import EVIDENCE, Signature, autocorrelation, id
 from sim.discrepancy.effects import EFFECTS, NATIVE_KEYS, NEUTRAL
 from sim.discrepancy.fit import fit_keys
 from sim.discrepancy.model import Surrogate, baseline_theta, channel_unit
+from sim.discrepancy.null import ModelLogUnavailable, model_log
 from sim.discrepancy.rig import AddedEffect, Rig, check_rig_matches_log
 from sim.discrepancy.selection import (
     MAX_ROUNDS,
     CandidateScore,
     ChannelScore,
+    against_model_log,
+    carried_by_model,
     held_out_score,
     make_pool,
     run_round,
 )
-from sim.discrepancy.signals import AnalysisConfig, prepare
+from sim.discrepancy.signals import AnalysisConfig, Prepared, prepare
 from sim.runlog import RunLog
 
 CHANNEL_MEANING = {
@@ -168,6 +171,7 @@ def analyse(log: RunLog, rig: Rig, config: AnalysisConfig | None = None, *, prog
     t = time.perf_counter()
     findings: list[Finding] = []
     rounds: list[list[CandidateScore]] = []
+    model_log_notes: list[str] = []
     pool = make_pool(surrogate)
     try:
         current, current_score = theta, before
@@ -177,13 +181,13 @@ def analyse(log: RunLog, rig: Rig, config: AnalysisConfig | None = None, *, prog
             _progress(f"round {round_index + 1}: fitting {len(candidates)} candidate effects", progress)
             scores = run_round(surrogate, candidates, current, free + nuisance, scales, current_score, before,
                                pool)
+            best, model_log_note = _first_passing(scores, log, rig, data, config, theta0, current, findings,
+                                                  free + nuisance, scales)
             rounds.append(scores)
-            best = scores[0]
-            if not best.passes:
-                passing = [s for s in scores if s.passes]
-                if not passing:
-                    break
-                best = passing[0]
+            if model_log_note:
+                model_log_notes.append(model_log_note)
+            if best is None:
+                break
             channel = best.best_channel
             findings.append(Finding(
                 effect=best.effect, parameters=_parameters(best.effect, theta0, best.fit.theta, rig.joint),
@@ -222,6 +226,7 @@ def analyse(log: RunLog, rig: Rig, config: AnalysisConfig | None = None, *, prog
         "autocorrelation": {c: autocorrelation(r[data.held], data.dt) for c, r in residuals_baseline.items()},
         "signatures": [s.to_dict() for s in sigs],
         "not_identifiable": not_identifiable,
+        "rule_3_reference": "; ".join(model_log_notes) or "the same fit on the current model's own log",
         "candidates": [[s.to_dict() for s in scores] for scores in rounds],
         "significance_rule": {"min_ic_drop": config.min_ic_drop, "min_relative_gain": config.min_relative_gain,
                               "min_parameter_change": config.min_parameter_change,
@@ -252,7 +257,7 @@ def _evidence(best: CandidateScore, surrogate: Surrogate, theta: dict[str, float
     return {"signature": wanted, "channel": sig.channel if sig else channel,
             "correlation_before": sig.correlation if sig else None, "delta_bic": best.delta_bic,
             "consistency_t": best.consistency_t,
-            "gains_by_channel": best.gains}
+            "gains_by_channel": best.gains, "model_log_parameters": best.model_log_parameters}
 
 
 def _extended_rig(rig: Rig, theta0: dict[str, float], theta: dict[str, float], findings: list[Finding]) -> Rig:
@@ -272,3 +277,30 @@ def _extended_rig(rig: Rig, theta0: dict[str, float], theta: dict[str, float], f
             continue
         added.append(AddedEffect(f.effect, {k: theta[k] for k in keys}))
     return rig.with_effects(tuple(added), native)
+
+
+def _first_passing(scores: list[CandidateScore], log: RunLog, rig: Rig, data: Prepared, config: AnalysisConfig,
+                   theta0: dict[str, float], current: dict[str, float], findings: list[Finding],
+                   free: tuple[str, ...], scales: dict[str, float]) -> tuple[CandidateScore | None, str | None]:
+    """The first candidate (best ΔBIC first) that passes the significance rule, rule 3 measured from the
+    current model's own log for an effect the model carries; ``scores`` updated in place. Also a note when the
+    model's log cannot be made (rule 3 then measured from the model's value)."""
+    model_surrogate: Surrogate | None = None
+    note = None
+    for i, score in enumerate(scores):
+        if not score.passes:
+            continue
+        if carried_by_model(score.effect, current) and note is None:
+            if model_surrogate is None:
+                try:
+                    model_rig = _extended_rig(rig, theta0, current, findings)
+                    model_data = prepare(model_log(log, model_rig, data, config.model_log_seed), model_rig, config)
+                    model_surrogate = Surrogate(model_data, model_rig, config)
+                except ModelLogUnavailable as why:
+                    note = f"no model log ({why}): rule 3 measured from the model's value"
+            if model_surrogate is not None:
+                score = scores[i] = against_model_log(score, model_surrogate, current, free, scales)
+                if not score.passes:
+                    continue
+        return score, note
+    return None, note

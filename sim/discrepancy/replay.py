@@ -11,13 +11,14 @@ compared signal is the load-cell torque (locked fixture), or the lever angle rel
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from typing import Any
 
 import numpy as np
 
 from sim.discrepancy.rig import Rig
 from sim.discrepancy.signals import AnalysisConfig, Prepared
-from sim.discrepancy.simulate import run_rigid, run_testbed, testbed_plant
+from sim.discrepancy.simulate import InitialState, run_rigid, run_testbed, testbed_plant
 from sim.runlog import RunLog
 
 
@@ -30,32 +31,56 @@ def _windows(data: Prepared, config: AnalysisConfig) -> list[tuple[int, int]]:
             if min(s + length, index[-1] + 1) - s >= 2]
 
 
+def measured_state(log: RunLog, rig: Rig, data: Prepared, *, at_rest: bool = False) -> Callable[[int], InitialState]:
+    """k -> a function that puts the plant of ``rig`` into the log's measured state at sample k.
+
+    Testbed: motor angle and velocity from the encoder, flexure twist from the measured transmitted torque
+    (τ/K_t), the hub inside the dead band where the angles put it. Rigid joint: position and velocity. The
+    LuGre bristle state and the actuator's delay buffer start empty. ``at_rest``: velocity zero (at the ends
+    of a log the zero-phase filter's velocity is not reliable).
+    """
+    velocity = np.zeros(len(data.velocity)) if at_rest else data.velocity
+    if rig.model != "testbed":
+        q = np.asarray(log["q"], dtype=float)
+
+        def rigid_state(k: int) -> InitialState:
+            def initial(model: Any, d: Any) -> None:
+                d.qpos[0], d.qvel[0] = q[k], velocity[k]
+            return initial
+        return rigid_state
+    assert rig.params is not None
+    from models.gim8108_testbed.derived import derive
+
+    k_t = derive(rig.params).flexure_stiffness_nm_per_rad
+    half_gap = 0.5 * rig.params.backlash.width_rad
+    q_motor = data.filt(np.asarray(log["q_motor"] if "q_motor" in log.columns else log["q"]))
+    q_lever = data.q if data.q is not None else q_motor
+    tau = (data.tau_loadcell if data.tau_loadcell is not None else
+           data.tau_sensor if data.tau_sensor is not None else np.zeros(len(q_motor)))
+
+    def testbed_state(k: int) -> InitialState:
+        def initial(model: Any, d: Any) -> None:
+            adr = {name: model.joint(name).qposadr[0] for name in ("motor", "backlash", "flexure")}
+            flex = -tau[k] / k_t
+            gap = min(max(q_lever[k] - q_motor[k] - flex, -half_gap), half_gap)
+            d.qpos[adr["motor"]], d.qpos[adr["backlash"]], d.qpos[adr["flexure"]] = q_motor[k], gap, flex
+            d.qvel[model.joint("motor").dofadr[0]] = velocity[k]
+        return initial
+    return testbed_state
+
+
 def _replay(log: RunLog, rig: Rig, data: Prepared, windows: list[tuple[int, int]]) -> tuple[np.ndarray, str, str]:
     u = np.asarray(log["tau_cmd"], dtype=float)
+    state_at = measured_state(log, rig, data)
     out = []
     if rig.model == "testbed":
         assert rig.params is not None
-        from models.gim8108_testbed.derived import derive
-
-        k_t = derive(rig.params).flexure_stiffness_nm_per_rad
-        half_gap = 0.5 * rig.params.backlash.width_rad
         plant = testbed_plant(rig)
         locked = rig.fixture == "locked"
-        q_motor = data.filt(np.asarray(log["q_motor"] if "q_motor" in log.columns else log["q"]))
-        q_lever = data.q if data.q is not None else q_motor
-        tau = (data.tau_loadcell if data.tau_loadcell is not None else
-               data.tau_sensor if data.tau_sensor is not None else np.zeros(len(u)))
-        m = plant.model
-        adr = {name: m.joint(name).qposadr[0] for name in ("motor", "backlash", "flexure")}
-        dof = m.joint("motor").dofadr[0]
+        q_lever = data.q if data.q is not None else data.filt(np.asarray(log["q_motor"]))
         for start, stop in windows:
-            def initial(model: Any, d: Any, k: int = start) -> None:
-                flex = -tau[k] / k_t
-                gap = min(max(q_lever[k] - q_motor[k] - flex, -half_gap), half_gap)
-                d.qpos[adr["motor"]], d.qpos[adr["backlash"]], d.qpos[adr["flexure"]] = q_motor[k], gap, flex
-                d.qvel[dof] = data.velocity[k]
-
-            run = run_testbed(rig, lambda i, s, k=start: float(u[k + i]), stop - start, initial=initial, plant=plant)
+            run = run_testbed(rig, lambda i, s, k=start: float(u[k + i]), stop - start, initial=state_at(start),
+                              plant=plant)
             if locked:
                 out.append(run.columns["force_loadcell"] * rig.params.lever.length_m)
             else:
@@ -64,10 +89,7 @@ def _replay(log: RunLog, rig: Rig, data: Prepared, windows: list[tuple[int, int]
     else:
         q = np.asarray(log["q"], dtype=float)
         for start, stop in windows:
-            def initial(model: Any, d: Any, k: int = start) -> None:
-                d.qpos[0], d.qvel[0] = q[k], data.velocity[k]
-
-            run = run_rigid(rig, lambda i, s, k=start: float(u[k + i]), stop - start, initial=initial)
+            run = run_rigid(rig, lambda i, s, k=start: float(u[k + i]), stop - start, initial=state_at(start))
             out.append(run.columns["q"] - q[start])
         signal, unit = "position from window start", "m" if rig.joint == "slide" else "rad"
     return np.concatenate(out), signal, unit

@@ -13,7 +13,10 @@ accepted only if **all four** hold:
    residual the earlier findings already brought down to the surrogate's own mismatch;
 3. minimum parameter change, for an effect the baseline already carries (all its parameters native to the
    baseline model and nonzero in the current one): one of them moves by at least ``min_parameter_change`` of
-   its current value (a baseline effect with another value must differ by more than the analysis can state);
+   its current value (a baseline effect with another value must differ by more than the analysis can state),
+   measured from the value the same fit gives on the current model's own log under the log's command
+   (:mod:`sim.discrepancy.null`), so that the estimator's own bias is not counted as a discrepancy (without a
+   model log, e.g. a rigid joint with a Stribeck curve, from the current value);
 4. consistency (a Diebold-Mariano test): the held-out improvement is not carried by a few events. With
    ``d_k = Σ_c (b_c,k² - a_c,k²) / mean(b_c²)`` the per-sample drop of the squared residuals (before ``b``,
    after ``a``, on the held-out samples decimated to the filter band, channels weighted by their mean square
@@ -32,7 +35,7 @@ from __future__ import annotations
 
 import math
 from concurrent.futures import ProcessPoolExecutor
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -68,6 +71,7 @@ class CandidateScore:
     consistency_t: float  # Diebold-Mariano statistic of the held-out improvement (rule 4) [1]
     passes: bool
     seconds: float
+    model_log_parameters: dict[str, float] | None = None  # the effect fitted on the model's own log (rule 3)
 
     @property
     def best_channel(self) -> str:
@@ -77,7 +81,7 @@ class CandidateScore:
         return {"effect": self.effect, "delta_bic": self.delta_bic, "gains": self.gains,
                 "consistency_t": self.consistency_t, "passes": self.passes,
                 "parameters": {k: self.fit.theta[k] for k in EFFECTS[self.effect].keys},
-                "seconds": self.seconds}
+                "model_log_parameters": self.model_log_parameters, "seconds": self.seconds}
 
 
 def held_out_score(surrogate: Surrogate, theta: dict[str, float]) -> ChannelScore:
@@ -148,17 +152,40 @@ def _init_worker(surrogate: Surrogate) -> None:
     _WORKER["surrogate"] = surrogate
 
 
-def moved_enough(effect: str, before: dict[str, float], after: dict[str, float], min_change: float) -> bool:
+def carried_by_model(effect: str, theta: dict[str, float]) -> bool:
+    """Whether ``effect`` is already in the model: all its parameters native (``NATIVE_KEYS``) and nonzero."""
+    return all(k in NATIVE_KEYS and theta.get(k, 0.0) != 0.0 for k in EFFECTS[effect].keys)
+
+
+def moved_enough(effect: str, before: dict[str, float], after: dict[str, float], min_change: float,
+                 reference: dict[str, float] | None = None) -> bool:
     """Whether ``effect`` is new to the model or moves one of its baseline parameters by ``min_change`` [1].
 
-    An effect counts as already in the model when all its parameters are native baseline parameters
-    (``NATIVE_KEYS``) with nonzero values in ``before``; it then needs ``|after - before| >= min_change·|before|``
-    for at least one parameter.
+    For an effect already in the model (:func:`carried_by_model`) at least one parameter needs
+    ``|after - reference| >= min_change·|before|``, ``reference`` being what the same fit gives on the model's
+    own log (default: ``before``, the model's value).
     """
-    keys = EFFECTS[effect].keys
-    if not all(k in NATIVE_KEYS and before.get(k, 0.0) != 0.0 for k in keys):
+    if not carried_by_model(effect, before):
         return True
-    return any(abs(after[k] - before[k]) >= min_change * abs(before[k]) for k in keys)
+    reference = reference or before
+    return any(abs(after[k] - reference[k]) >= min_change * abs(before[k]) for k in EFFECTS[effect].keys)
+
+
+def fit_effect(surrogate: Surrogate, effect: str, theta: dict[str, float], free: tuple[str, ...],
+               scales: dict[str, float]) -> FitOutcome:
+    """Fit one effect's parameters jointly with the free baseline parameters, from ``theta``."""
+    starts, held = effect_starts(effect, theta, surrogate)
+    keys = tuple(k for k in EFFECTS[effect].keys if k not in held) + tuple(k for k in free if k not in EFFECTS[effect].keys)
+    return fit_keys(surrogate, theta, keys, scales, starts)
+
+
+def against_model_log(score: CandidateScore, model_surrogate: Surrogate, theta: dict[str, float],
+                      free: tuple[str, ...], scales: dict[str, float]) -> CandidateScore:
+    """``score`` with rule 3 measured from the same fit on the model's own log (``model_surrogate``)."""
+    reference = fit_effect(model_surrogate, score.effect, theta, free, scales).theta
+    params = {k: reference[k] for k in EFFECTS[score.effect].keys}
+    moved = moved_enough(score.effect, theta, score.fit.theta, model_surrogate.config.min_parameter_change, params)
+    return replace(score, passes=score.passes and moved, model_log_parameters=params)
 
 
 def fit_candidate(surrogate: Surrogate, effect: str, theta: dict[str, float], free: tuple[str, ...],
@@ -168,9 +195,7 @@ def fit_candidate(surrogate: Surrogate, effect: str, theta: dict[str, float], fr
     import time
 
     start = time.perf_counter()
-    starts, held = effect_starts(effect, theta, surrogate)
-    keys = tuple(k for k in EFFECTS[effect].keys if k not in held) + tuple(k for k in free if k not in EFFECTS[effect].keys)
-    outcome = fit_keys(surrogate, theta, keys, scales, starts)
+    outcome = fit_effect(surrogate, effect, theta, free, scales)
     after = held_out_score(surrogate, outcome.theta)
     n_params = len(EFFECTS[effect].keys)
     delta, gains = compare(before, after, n_params)

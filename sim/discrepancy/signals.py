@@ -69,6 +69,8 @@ class AnalysisConfig:
         Length of the MuJoCo replay windows, each re-initialised from the measured state [s].
     workers : int
         Processes for the candidate fits (1: in this process).
+    model_log_seed : int
+        Seed of the noise drawn for the model's own log (rule 3's reference, :mod:`sim.discrepancy.null`).
     """
 
     filter_cutoff_hz: float = 25.0
@@ -83,6 +85,7 @@ class AnalysisConfig:
     consistency_lag_s: float = 0.2
     replay_window_s: float = 0.5
     workers: int = 1
+    model_log_seed: int = 0
 
     def __post_init__(self) -> None:
         for name, low, high in (("filter_cutoff_hz", 0.0, np.inf), ("fit_fraction", 0.1, 0.9),

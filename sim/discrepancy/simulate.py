@@ -12,7 +12,7 @@ Effects reach MuJoCo as natively as MuJoCo allows:
   opposing positive motion); MuJoCo's LuGre is symmetric;
 - gravity: a torque on the lever (``external`` actuator) from the lever angle of the previous tick (one control
   tick late: gravity changes slowly against 1 ms);
-- sensor effects act on the sensor reading, not the mechanics (applied in :mod:`sim.discrepancy.synth`).
+- sensor effects act on the sensor reading, not the mechanics (:func:`sensor_reading`).
 
 A rigid joint is a one-body MJCF: ``frictionloss`` (Coulomb with stick), ``damping`` (viscous), a ``motor``
 actuator with the effort gain and the command ``delay`` (history linearly interpolated); gravity and cogging through a second actuator
@@ -196,3 +196,19 @@ def run_rigid(rig: Rig, command: CommandFn, n_ticks: int, *, initial: InitialSta
     lin = rig.joint == "slide"
     units = {"time": "s", "tau_cmd": "N" if lin else "N·m", "q": "m" if lin else "rad", "qd": "m/s" if lin else "rad/s"}
     return SimulatedRun({name: out[:, i].copy() for i, name in enumerate(units)}, units)
+
+
+def sensor_reading(truth: Rig, tau: np.ndarray, temperature: np.ndarray) -> np.ndarray:
+    """The torque sensor's output for the true flexure torque (its effects applied, noise not yet)."""
+    from sim.discrepancy.model import play_operator  # the same elastic-plastic element the analysis fits
+
+    values = {"sensor_offset": 0.0, "sensor_gain": 1.0, "sensor_tempco": 0.0, "sensor_hysteresis": 0.0,
+              "sensor_hysteresis_span": 1.0}
+    for effect in truth.effects:
+        values.update({k: v for k, v in effect.parameters.items() if k in values})
+    reading = values["sensor_gain"] * tau + values["sensor_offset"]
+    reading = reading + values["sensor_tempco"] * (temperature - truth.params.photoreflector.reference_temperature_c)
+    if values["sensor_hysteresis"]:
+        span = values["sensor_hysteresis_span"]
+        reading = reading + values["sensor_hysteresis"] / span * (tau - play_operator(tau, span))
+    return reading

@@ -33,7 +33,7 @@ import numpy as np
 from controllers.pi import PITorqueController
 from sim.discrepancy.effects import EFFECTS
 from sim.discrepancy.rig import AddedEffect, Rig, rig_from_dict
-from sim.discrepancy.simulate import run_rigid, run_testbed
+from sim.discrepancy.simulate import run_rigid, run_testbed, sensor_reading
 from sim.logio import SlideRunLog
 from sim.params import TestbedParams, field_range
 from sim.runlog import RunLog
@@ -240,22 +240,6 @@ def truth_rig(baseline: Rig, effects: dict[str, tuple[dict[str, float], dict[str
     return HiddenTruth(truth, baseline.with_effects(tuple(added), native))
 
 
-def _sensor_reading(truth: Rig, tau: np.ndarray, temperature: np.ndarray) -> np.ndarray:
-    """The torque sensor's output for the true flexure torque (its effects applied, noise not yet)."""
-    from sim.discrepancy.model import play_operator  # the same elastic-plastic element the analysis fits
-
-    values = {"sensor_offset": 0.0, "sensor_gain": 1.0, "sensor_tempco": 0.0, "sensor_hysteresis": 0.0,
-              "sensor_hysteresis_span": 1.0}
-    for effect in truth.effects:
-        values.update({k: v for k, v in effect.parameters.items() if k in values})
-    reading = values["sensor_gain"] * tau + values["sensor_offset"]
-    reading = reading + values["sensor_tempco"] * (temperature - truth.params.photoreflector.reference_temperature_c)
-    if values["sensor_hysteresis"]:
-        span = values["sensor_hysteresis_span"]
-        reading = reading + values["sensor_hysteresis"] / span * (tau - play_operator(tau, span))
-    return reading
-
-
 def _quantise(x: np.ndarray, step: float) -> np.ndarray:
     return np.round(x / step) * step
 
@@ -319,7 +303,7 @@ def synth_log(experiment: str, truth: Rig, duration_s: float, seed: int, *,
             t = t_of(k)
             ref = PI_BIAS_NM + sum(a * math.sin(2 * math.pi * f * t) for a, f in PI_REFERENCE)
             if feedback == "tau_sensor":  # what the controller sees is the sensor's (effects and noise) reading
-                measured = float(_sensor_reading(sensor_rig, np.array([s["tau_flexure"]]),
+                measured = float(sensor_reading(sensor_rig, np.array([s["tau_flexure"]]),
                                                  np.array([truth.params.photoreflector.reference_temperature_c]))[0])
                 measured += noise_tau[k - 1] if k else 0.0
             else:
@@ -329,7 +313,7 @@ def synth_log(experiment: str, truth: Rig, duration_s: float, seed: int, *,
     run = run_testbed(truth, command, n)
     c = run.columns
     temperature = c["temperature"] + CHAMBER_RAMP_K * (c["time"] - c["time"][0]) / (c["time"][-1] - c["time"][0])
-    tau_sensor = _sensor_reading(truth, c["tau_flexure"], temperature) + noise_tau
+    tau_sensor = sensor_reading(truth, c["tau_flexure"], temperature) + noise_tau
     cols = {"time": c["time"], "tau_cmd": c["tau_cmd"],
             "q": _quantise(c["q"], 2 * math.pi / LEVER_ENCODER_COUNTS),
             "q_motor": (c["q_motor"] if motor_encoder_counts is None else

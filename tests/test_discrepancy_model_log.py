@@ -1,0 +1,89 @@
+"""Rule 3's reference: the same fit on the model's own log (sim.discrepancy.null).
+
+The oracle for the model's log is the simulator itself: a log the baseline produced, replayed open loop with its
+own command from its own initial state, retraces the same motion.
+"""
+
+import numpy as np
+import pytest
+
+from sim.discrepancy.analysis import analyse
+from sim.discrepancy.null import ModelLogUnavailable, model_log, white_noise_std
+from sim.discrepancy.rig import rig_from_dict
+from sim.discrepancy.selection import moved_enough
+from sim.discrepancy.signals import AnalysisConfig, prepare
+from sim.discrepancy.synth import FINE_MOTOR_ENCODER_COUNTS, LOADCELL_NOISE_N, hidden_effect_log
+
+DURATION_S = 10.0  # the slow sweep's length: the estimator bias below is measured on it
+
+
+def test_white_noise_std_is_recovered_on_a_smooth_signal_with_impacts():
+    rng = np.random.default_rng(3)
+    t = np.arange(0.0, 10.0, 1e-3)
+    smooth = 0.5 * np.sin(2 * np.pi * 3.1 * t) + 0.3 * np.sin(2 * np.pi * 11.0 * t)
+    smooth[::500] += 2.0  # impacts: single-sample spikes of 400 noise standard deviations
+    assert white_noise_std(smooth + rng.normal(0.0, 5e-3, len(t))) == pytest.approx(5e-3, rel=0.05)
+
+
+def test_rule_3_measures_the_move_from_the_reference_when_given():
+    before = {"coulomb": 0.09}
+    change = AnalysisConfig().min_parameter_change
+    biased = {"coulomb": 0.078}  # 13 % from the model's value, 0.5 % from the reference
+    assert moved_enough("coulomb_friction", before, biased, change)
+    assert not moved_enough("coulomb_friction", before, biased, change, reference={"coulomb": 0.0776})
+
+
+@pytest.fixture(scope="module")
+def fine_encoder_sensor_feedback_log():
+    """A baseline sensor-feedback PI log with the 22-bit motor encoder (the surrogate's Coulomb bias, seed 31)."""
+    return hidden_effect_log("locked_pi_sensor", [], 31, DURATION_S, motor_encoder_counts=FINE_MOTOR_ENCODER_COUNTS)
+
+
+def test_the_model_log_of_a_baseline_log_retraces_its_motion(fine_encoder_sensor_feedback_log):
+    """Same plant and command; it starts at rest from the first measured positions, so after the start
+    transient (the filter guard) the motor angle agrees within a few counts and the load cell within noise."""
+    log, rig, _ = fine_encoder_sensor_feedback_log
+    before = {name: np.array(values) for name, values in log.columns.items()}
+    config = AnalysisConfig()
+    replayed = model_log(log, rig, prepare(log, rig, config))
+    assert set(replayed.columns) == set(log.columns)
+    after_start = log["time"] - log["time"][0] > config.guard_s
+    count_rad = 2 * np.pi / (FINE_MOTOR_ENCODER_COUNTS * rig.params.motor.gear_ratio)
+    assert np.abs(replayed["q_motor"] - log["q_motor"])[after_start].max() <= 10 * count_rad
+    lever_m = rig.params.lever.length_m
+    force_error = (replayed["force_loadcell"] - log["force_loadcell"])[after_start] * lever_m
+    assert np.std(force_error) == pytest.approx(np.sqrt(2) * LOADCELL_NOISE_N * lever_m, rel=0.1)  # two draws
+    for name, values in before.items():
+        np.testing.assert_array_equal(log[name], values)  # the measured log is not modified
+
+
+def test_the_surrogate_bias_on_a_baseline_log_is_not_reported(fine_encoder_sensor_feedback_log):
+    """The Coulomb fit is 13 % off the model's value on the model's own log as well: not a discrepancy."""
+    log, rig, _ = fine_encoder_sensor_feedback_log
+    result = analyse(log, rig)
+    assert result.found == []
+    coulomb = next(s for s in result.baseline["candidates"][0] if s["effect"] == "coulomb_friction")
+    fitted, reference = coulomb["parameters"]["coulomb"], coulomb["model_log_parameters"]["coulomb"]
+    model_value = rig.params.friction.coulomb_torque_nm
+    assert abs(fitted - model_value) > 0.1 * model_value  # rule 3 against the model's value would accept it
+    assert abs(fitted - reference) < 0.02 * model_value
+
+
+def test_a_hidden_baseline_effect_is_measured_against_the_model_log():
+    log, rig, truth = hidden_effect_log("free", ["coulomb_friction"], 21, DURATION_S)
+    result = analyse(log, rig)
+    assert result.found[:1] == ["coulomb_friction"]
+    evidence = result.findings[0].evidence
+    assert evidence["model_log_parameters"]["coulomb"] == pytest.approx(rig.params.friction.coulomb_torque_nm,
+                                                                        rel=0.01)
+    assert result.findings[0].parameters["coulomb"]["value"] == pytest.approx(
+        truth.effects["coulomb_friction"]["coulomb"], rel=0.05)
+
+
+def test_a_rigid_joint_with_a_stribeck_curve_has_no_model_log():
+    rig = rig_from_dict({"model": "rigid-joint", "joint": "slide", "mass_kg": 2.0, "effort_gain": 1.0,
+                         "friction": {"coulomb": 3.0, "viscous": 8.0, "breakaway": 4.0,
+                                      "stribeck_velocity": 0.01}})
+    log, _, _ = hidden_effect_log("slide", [], 1, 2.0)
+    with pytest.raises(ModelLogUnavailable, match="Stribeck"):
+        model_log(log, rig, prepare(log, rig, AnalysisConfig()))

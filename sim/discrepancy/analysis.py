@@ -181,8 +181,10 @@ def analyse(log: RunLog, rig: Rig, config: AnalysisConfig | None = None, *, prog
             _progress(f"round {round_index + 1}: fitting {len(candidates)} candidate effects", progress)
             scores = run_round(surrogate, candidates, current, free + nuisance, scales, current_score, before,
                                pool)
+            t_model_log = time.perf_counter()
             best, model_log_note = _first_passing(scores, log, rig, data, config, theta0, current, findings,
                                                   free + nuisance, scales)
+            timings["model_log_s"] = timings.get("model_log_s", 0.0) + time.perf_counter() - t_model_log
             rounds.append(scores)
             if model_log_note:
                 model_log_notes.append(model_log_note)

@@ -89,12 +89,14 @@ def model_log(log: RunLog, rig: Rig, data: Prepared, seed: int = 0) -> RunLog:
             columns[name] = np.round(sim[name] / step) * step if step > 0 else sim[name].copy()
     if "temperature" in log.columns:
         columns["temperature"] = np.asarray(log["temperature"], dtype=float)
-    if "tau_sensor" in log.columns:
-        temperature = columns.get("temperature", np.full(len(u), rig.params.photoreflector.reference_temperature_c))
-        columns["tau_sensor"] = sensor_reading(rig, sim["tau_flexure"], temperature)
-    if "force_loadcell" in log.columns:
-        columns["force_loadcell"] = sim["force_loadcell"].copy()
-    for name in NOISE_COLUMNS:
-        if name in columns:
-            columns[name] = columns[name] + rng.normal(0.0, white_noise_std(log[name]), len(u))
+    if rig.model == "testbed":  # a rigid joint's model has no transmitted torque (the analysis reads neither)
+        if "tau_sensor" in log.columns:
+            temperature = columns.get("temperature",
+                                      np.full(len(u), rig.params.photoreflector.reference_temperature_c))
+            columns["tau_sensor"] = sensor_reading(rig, sim["tau_flexure"], temperature)
+        if "force_loadcell" in log.columns:
+            columns["force_loadcell"] = sim["force_loadcell"].copy()
+        for name in NOISE_COLUMNS:
+            if name in columns:
+                columns[name] = columns[name] + rng.normal(0.0, white_noise_std(log[name]), len(u))
     return type(log)(columns, {name: log.units[name] for name in columns}, dict(log.meta))

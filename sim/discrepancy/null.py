@@ -24,7 +24,7 @@ import numpy as np
 
 from sim.discrepancy.replay import measured_state
 from sim.discrepancy.rig import Rig
-from sim.discrepancy.signals import Prepared
+from sim.discrepancy.signals import Prepared, quantise, smallest_step
 from sim.discrepancy.simulate import run_rigid, run_testbed, sensor_reading
 from sim.plant import SimulationDiverged
 from sim.runlog import RunLog
@@ -49,13 +49,6 @@ def white_noise_std(x: np.ndarray) -> float:
     if len(d2) == 0:
         return 0.0
     return float(MAD_TO_STD * np.median(np.abs(d2 - np.median(d2))) / SECOND_DIFFERENCE_GAIN)
-
-
-def smallest_step(x: np.ndarray) -> float:
-    """Smallest nonzero step between consecutive samples [x's unit] (0 for a constant signal)."""
-    steps = np.abs(np.diff(np.asarray(x, dtype=float)))
-    steps = steps[steps > 0]
-    return float(steps.min()) if len(steps) else 0.0
 
 
 def model_log(log: RunLog, rig: Rig, data: Prepared, seed: int = 0) -> RunLog:
@@ -86,7 +79,7 @@ def model_log(log: RunLog, rig: Rig, data: Prepared, seed: int = 0) -> RunLog:
     for name in POSITION_COLUMNS:
         if name in log.columns and name in sim:  # a rigid joint has no motor encoder (the analysis reads q)
             step = smallest_step(log[name])
-            columns[name] = np.round(sim[name] / step) * step if step > 0 else sim[name].copy()
+            columns[name] = quantise(sim[name], step) if step > 0 else sim[name].copy()
     if "temperature" in log.columns:
         columns["temperature"] = np.asarray(log["temperature"], dtype=float)
     if rig.model == "testbed":  # a rigid joint's model has no transmitted torque (the analysis reads neither)

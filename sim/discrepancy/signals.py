@@ -50,7 +50,9 @@ class AnalysisConfig:
     min_parameter_change : float
         Significance rule, third part: an effect the baseline already carries (all its parameters native to the
         baseline model and nonzero) is accepted only if one of them moves by at least this fraction of its
-        current value [1]. 5 %: the tolerance within which the analysis recovers well-excited parameters
+        current value [1], measured from the value the same fit gives on the model's own log
+        (:mod:`sim.discrepancy.null`: the estimator's bias is not a discrepancy). 5 %: the tolerance within which
+        the analysis recovers well-excited parameters
         (tests/test_discrepancy_sweep.py), so a smaller change is not one it can state. Needed with fine motor
         encoders: on the free swing's baseline logs with a 22-bit encoder (no quantisation floor under the
         residual) a Coulomb level 0.8 % above the baseline's gained 16 % held-out (measured, seeds 31-35).
@@ -142,6 +144,19 @@ class Prepared:
         return sosfiltfilt(self.sos, x)
 
 
+def smallest_step(x: np.ndarray) -> float:
+    """Smallest nonzero step between consecutive samples [x's unit] (0 for a constant signal): an encoder's
+    resolution read from its log."""
+    steps = np.abs(np.diff(np.asarray(x, dtype=float)))
+    steps = steps[steps > 0]
+    return float(steps.min()) if len(steps) else 0.0
+
+
+def quantise(x: np.ndarray, step: float) -> np.ndarray:
+    """``x`` rounded to multiples of ``step`` [x's unit] (an encoder of that resolution)."""
+    return np.round(x / step) * step
+
+
 def prepare(log: RunLog, rig: Rig, config: AnalysisConfig) -> Prepared:
     """Filter and differentiate the log's signals, choose the load source, split fit and held-out parts."""
     t = np.asarray(log["time"], dtype=float)
@@ -193,9 +208,7 @@ def prepare(log: RunLog, rig: Rig, config: AnalysisConfig) -> Prepared:
     index = np.arange(n)
     fit = (index >= guard) & (index < split - guard)
     held = (index >= split + guard) & (index < n - guard)
-    steps = np.abs(np.diff(position))
-    steps = steps[steps > 0]
-    resolution = float(steps.min()) if len(steps) else 0.0
+    resolution = smallest_step(position)
     return Prepared(t=t, dt=dt, u=np.asarray(cols["tau_cmd"], dtype=float), position=position,
                     step_velocity=step_velocity, velocity=velocity, acceleration=acceleration, q=q,
                     lever_acceleration=lever_acc, tau_loadcell=tau_lc, tau_sensor=tau_s, temperature=temperature,

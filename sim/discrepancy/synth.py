@@ -33,6 +33,7 @@ import numpy as np
 from controllers.pi import PITorqueController
 from sim.discrepancy.effects import EFFECTS
 from sim.discrepancy.rig import AddedEffect, Rig, rig_from_dict
+from sim.discrepancy.signals import quantise
 from sim.discrepancy.simulate import run_rigid, run_testbed, sensor_reading
 from sim.logio import SlideRunLog
 from sim.params import TestbedParams, field_range
@@ -240,10 +241,6 @@ def truth_rig(baseline: Rig, effects: dict[str, tuple[dict[str, float], dict[str
     return HiddenTruth(truth, baseline.with_effects(tuple(added), native))
 
 
-def _quantise(x: np.ndarray, step: float) -> np.ndarray:
-    return np.round(x / step) * step
-
-
 def synth_log(experiment: str, truth: Rig, duration_s: float, seed: int, *,
               motor_encoder_counts: int | None = MOTOR_ENCODER_COUNTS) -> RunLog:
     """A measured-like log of ``experiment`` run on the ``truth`` rig, with sensor noise drawn from ``seed``.
@@ -280,7 +277,7 @@ def synth_log(experiment: str, truth: Rig, duration_s: float, seed: int, *,
 
         run = run_rigid(truth, command, n)
         cols = {"time": run.columns["time"], "tau_cmd": run.columns["tau_cmd"],
-                "q": _quantise(run.columns["q"], LINEAR_ENCODER_STEP_M)}
+                "q": quantise(run.columns["q"], LINEAR_ENCODER_STEP_M)}
         return SlideRunLog(cols, {"time": "s", "tau_cmd": "N", "q": "m"}, {"experiment": experiment, "seed": seed})
 
     n_gear = truth.params.motor.gear_ratio
@@ -315,9 +312,9 @@ def synth_log(experiment: str, truth: Rig, duration_s: float, seed: int, *,
     temperature = c["temperature"] + CHAMBER_RAMP_K * (c["time"] - c["time"][0]) / (c["time"][-1] - c["time"][0])
     tau_sensor = sensor_reading(truth, c["tau_flexure"], temperature) + noise_tau
     cols = {"time": c["time"], "tau_cmd": c["tau_cmd"],
-            "q": _quantise(c["q"], 2 * math.pi / LEVER_ENCODER_COUNTS),
+            "q": quantise(c["q"], 2 * math.pi / LEVER_ENCODER_COUNTS),
             "q_motor": (c["q_motor"] if motor_encoder_counts is None else
-                        _quantise(c["q_motor"], 2 * math.pi / (motor_encoder_counts * n_gear))),
+                        quantise(c["q_motor"], 2 * math.pi / (motor_encoder_counts * n_gear))),
             "tau_sensor": tau_sensor, "temperature": temperature}
     units = {"time": "s", "tau_cmd": "N·m", "q": "rad", "q_motor": "rad", "tau_sensor": "N·m", "temperature": "°C"}
     if truth.fixture == "locked":

@@ -5,7 +5,7 @@ paper. The assertion messages list every row beside the paper's value, so a fail
 are off and by how much.
 
 The target is not met yet: ``OUT_OF_BAND`` names the figures still outside a factor 1.5 with the default
-parameters (seed 0) and why. They are not excused: the full target is a strict expected failure (it turns
+parameters (seed 0) and why (docs/issue4_figures.md: what the paper's numbers imply, what was tried). They are not excused: the full target is a strict expected failure (it turns
 into an error the day it passes, so this list gets emptied), and every other figure must stay in the band.
 """
 
@@ -23,7 +23,8 @@ OUT_OF_BAND = {
     # RMS over the disturbance phase until regulation is lost; ours is lost later (0.39 vs 0.3 N·m) from a
     # smaller error, the paper's loss is more abrupt.
     "disturbance, current feedback: RMS error": 0.63,
-    # the paper's current-feedback square output sits below zero (max y ≈ -0.04 N·m); ours reaches +0.01 N·m.
+    # the paper's current-feedback square output reaches ≈ +0.24 N·m (max y ≈ -0.04 N·m, the other root of its
+    # peak, would force an RMS >= 0.10 N·m, above its 0.092); ours reaches +0.01 N·m.
     "0.1 N·m square 1 Hz, current feedback: peak error": 0.64,
     # backlash impacts at the zero crossings under sensor feedback: sqrt(2·F_net·gap·K) ≈ 0.25 N·m for the
     # 0.5 mrad gap (0.6 N·m at the earlier 3.5 mrad); between impacts the low-torque sine tracks better than

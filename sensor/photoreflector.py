@@ -345,7 +345,27 @@ class NormalStream:
 
 
 def reference_torque(tau_nm: np.ndarray, params: TestbedParams, rng: np.random.Generator) -> np.ndarray:
-    """The ATI MINI85 reading of a torque [N·m]: white noise, quantised to its resolution."""
+    """The ATI MINI85 reading of a torque [N·m]: gain error, white noise, quantised to its resolution.
+
+    ``round(((1 + g)·τ + n) / r)·r`` with g = ``photoreflector.reference_gain_error`` [1], n ~ N(0,
+    ``reference_noise_nm``²) [N·m] and r = ``reference_resolution_nm`` [N·m]. This reading is the truth of
+    the calibration rig and the thermal tests; the plant's torque and the load cell do not pass through it.
+
+    Parameters
+    ----------
+    tau_nm : numpy.ndarray
+        True T_z applied to the MINI85 [N·m], any shape.
+    params : TestbedParams
+        Parameter set; its ``photoreflector.reference_*`` fields describe the MINI85.
+    rng : numpy.random.Generator
+        Draws the noise (one standard normal per sample, in order).
+
+    Returns
+    -------
+    numpy.ndarray
+        The MINI85 reading [N·m], same shape as ``tau_nm``.
+    """
     pr = params.photoreflector
-    noisy = np.asarray(tau_nm, dtype=float) + rng.standard_normal(np.shape(tau_nm)) * pr.reference_noise_nm
+    noisy = ((1.0 + pr.reference_gain_error) * np.asarray(tau_nm, dtype=float)
+             + rng.standard_normal(np.shape(tau_nm)) * pr.reference_noise_nm)
     return np.rint(noisy / pr.reference_resolution_nm) * pr.reference_resolution_nm

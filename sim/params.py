@@ -275,6 +275,11 @@ class PhotoReflectorParams:
         7.0 / 748.0, "N·m", "paper Sec. IV-A: ATI MINI85 T_z resolution 7/748 N·m", 0.0, 1.0, low_open=True)
     reference_noise_nm: float = quantity(
         4.7e-3, "N·m", "assumed: MINI85 noise std of half its resolution", 0.0, 1.0)
+    reference_gain_error: float = quantity(
+        0.0, "1", "assumed: ATI MINI85 T_z gain error g, the reading is (1 + g)·τ + noise, quantised; 0 = an "
+        "exact reference, because the unit's actual error is unknown. Range from paper Sec. IV-A: 1 % FS "
+        "accuracy; a gain error g is off by |g|·80 N·m at full scale, so |g| <= 1 % keeps the error within "
+        "1 % FS", -0.01, 0.01)
 
 
 @dataclass(frozen=True)

@@ -84,8 +84,8 @@ def model_log(log: RunLog, rig: Rig, data: Prepared, seed: int = 0) -> RunLog:
         columns["temperature"] = np.asarray(log["temperature"], dtype=float)
     if rig.model == "testbed":  # a rigid joint's model has no transmitted torque (the analysis reads neither)
         if "tau_sensor" in log.columns:
-            temperature = columns.get("temperature",
-                                      np.full(len(u), rig.params.photoreflector.reference_temperature_c))
+            temperature = (columns["temperature"] if "temperature" in columns else
+                           np.full(len(u), rig.params.photoreflector.reference_temperature_c))
             columns["tau_sensor"] = sensor_reading(rig, sim["tau_flexure"], temperature)
         if "force_loadcell" in log.columns:
             columns["force_loadcell"] = sim["force_loadcell"].copy()

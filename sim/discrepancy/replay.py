@@ -31,6 +31,16 @@ def _windows(data: Prepared, config: AnalysisConfig) -> list[tuple[int, int]]:
             if min(s + length, index[-1] + 1) - s >= 2]
 
 
+def _motor_angle(log: RunLog, data: Prepared) -> np.ndarray:
+    """The filtered motor-side angle [rad]: the motor encoder, else the only encoder the log has."""
+    return data.filt(np.asarray(log["q_motor"] if "q_motor" in log.columns else log["q"], dtype=float))
+
+
+def _lever_angle(log: RunLog, data: Prepared) -> np.ndarray:
+    """The lever angle [rad]: the filtered lever encoder, else the motor-side angle (rigid gear assumed)."""
+    return data.q if data.q is not None else _motor_angle(log, data)
+
+
 def measured_state(log: RunLog, rig: Rig, data: Prepared, *, at_rest: bool = False) -> Callable[[int], InitialState]:
     """k -> a function that puts the plant of ``rig`` into the log's measured state at sample k.
 
@@ -53,8 +63,8 @@ def measured_state(log: RunLog, rig: Rig, data: Prepared, *, at_rest: bool = Fal
 
     k_t = derive(rig.params).flexure_stiffness_nm_per_rad
     half_gap = 0.5 * rig.params.backlash.width_rad
-    q_motor = data.filt(np.asarray(log["q_motor"] if "q_motor" in log.columns else log["q"]))
-    q_lever = data.q if data.q is not None else q_motor
+    q_motor = _motor_angle(log, data)
+    q_lever = _lever_angle(log, data)
     tau = (data.tau_loadcell if data.tau_loadcell is not None else
            data.tau_sensor if data.tau_sensor is not None else np.zeros(len(q_motor)))
 
@@ -77,7 +87,7 @@ def _replay(log: RunLog, rig: Rig, data: Prepared, windows: list[tuple[int, int]
         assert rig.params is not None
         plant = testbed_plant(rig)
         locked = rig.fixture == "locked"
-        q_lever = data.q if data.q is not None else data.filt(np.asarray(log["q_motor"]))
+        q_lever = _lever_angle(log, data)
         for start, stop in windows:
             run = run_testbed(rig, lambda i, s, k=start: float(u[k + i]), stop - start, initial=state_at(start),
                               plant=plant)

@@ -58,9 +58,13 @@ def test_the_model_log_of_a_baseline_log_retraces_its_motion(fine_encoder_sensor
 
 
 def test_the_surrogate_bias_on_a_baseline_log_is_not_reported(fine_encoder_sensor_feedback_log):
-    """The Coulomb fit is 13 % off the model's value on the model's own log as well: not a discrepancy."""
+    """The Coulomb fit is 13 % off the model's value on the model's own log as well: not a discrepancy.
+
+    Its held-out gain is 9 % (20 % before the stuck load friction took the band's edge where the gear moves),
+    under the 10 % rule; the rule is lowered here so that rule 3 is what stands between this bias and a report.
+    """
     log, rig, _ = fine_encoder_sensor_feedback_log
-    result = analyse(log, rig)
+    result = analyse(log, rig, AnalysisConfig(min_relative_gain=0.05))
     assert result.found == []
     coulomb = next(s for s in result.baseline["candidates"][0] if s["effect"] == "coulomb_friction")
     fitted, reference = coulomb["parameters"]["coulomb"], coulomb["model_log_parameters"]["coulomb"]

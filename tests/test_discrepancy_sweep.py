@@ -101,14 +101,12 @@ def test_presliding_is_declared_unrevealable_at_the_encoder_resolution():
 
 # Presliding with a fine motor encoder (22 bits per motor turn), hidden in the closed-loop current-feedback log:
 # the torque loop holds the motor stuck through many small load reversals. Measured relative errors of σ0 on
-# seeds 21/22/23: 1.7 %, 11 %, 3.4 % when first measured; +14.3 %, +11.3 %, +13.4 % with the current defaults
-# (session 9; seeds 24-27 outside the suite: +19.2, +15.3, +13.2, +12.6 %: a bias upward, near the tolerance). The
-# same with an ideal (unquantised) encoder (11.3 % on seed 22 when first measured), so the
-# error is not resolution but the surrogate's presliding against MuJoCo's dcmotor LuGre (the surrogate drives
-# the bristle state with the measured motion at the 1 kHz log rate, MuJoCo integrates it at its physics step;
-# not separated further), largest for the softest draw (seed 22, σ0 = 4.8e3 N·m/rad). Tolerance 15 %.
+# seeds 21/22/23: -4.2 %, -2.9 %, -3.9 % (seeds 24-27 outside the suite: -4.4, -2.9, -3.0, -3.4 %; an ideal
+# encoder -5.7 to -6.3 %). Before session 13 +14.3 %, +11.3 %, +13.4 % (24-27 up to +19.2 %): the surrogate let
+# the load-dependent friction take any value in its band on presliding samples, where MuJoCo's frictionloss row
+# sits at the band's edge (docs/discrepancy_limits.md, "Presliding stiffness"). Tolerance 15 %.
 # The open-loop locked swing does not reveal it even with an ideal encoder: σ0 9 % off and a 8.4 % held-out
-# gain, below the 10 % rule (seed 21).
+# gain, below the 10 % rule (seed 21, measured before session 13).
 PRESLIDING_TOLERANCE = 0.15
 
 
@@ -123,9 +121,10 @@ def test_presliding_is_recovered_with_a_fine_motor_encoder(seed):
     _check(result, truth, "presliding_friction", {"presliding_stiffness": (PRESLIDING_TOLERANCE, "relative")})
 
 
-# Sensor-feedback PI logs with the 22-bit encoder give a Coulomb level ~13 % low (seed 31: 0.078 for 0.09 N·m, 20 %
-# held-out, consistency t 2.35; seed 35: t 2.34): the surrogate's bias, not a discrepancy. Rule 3 measures the move
-# from the same fit on the model's own log (seed 31: 0.077), so it is not reported (docs/discrepancy_limits.md).
+# Sensor-feedback PI logs with the 22-bit encoder give a Coulomb level ~13 % low (seed 31: 0.078 for 0.09 N·m,
+# consistency t 2.49): the surrogate's bias, not a discrepancy. Its held-out gain is at most 9.6 % (seeds 31-37;
+# 20 % before session 13), under rule (a); rule 3 would also reject it, measuring the move from the same fit on
+# the model's own log (seed 31: 0.077; docs/discrepancy_limits.md).
 @pytest.mark.slow
 @pytest.mark.parametrize("seed", (31, 32, 33, 35))
 @pytest.mark.parametrize("experiment", [e for e in EXPERIMENTS if e != "slide"])  # the slide has no motor encoder

@@ -2,9 +2,8 @@
 optical joint torque sensor.
 
 * ``current``: the driver's N·K_t·i, what a GIM8108 reports: :attr:`sim.plant.Plant.current_torque_estimate_nm`
-  through the inverse of :class:`controllers.motor_driver.CurrentToTorqueMap` (the driver assumes the nominal
-  K_t). It is blind to the gear's friction, backlash, load-dependent losses and the current-to-torque
-  nonlinearity.
+  (the driver assumes the nominal K_t). It is blind to the gear's friction, backlash, load-dependent losses and
+  the current-to-torque nonlinearity.
 * ``sensor``: :class:`sensor.readout.TorqueSensorReadout`, the photo-reflector array read once per tick from
   the flexure's twist and the TMP117 temperature through the factory calibration (QP), with its channel
   noise, ADC quantisation, hysteresis and thermal drift.
@@ -14,7 +13,6 @@ from __future__ import annotations
 
 from typing import Protocol
 
-from controllers.motor_driver import CurrentToTorqueMap
 from sim.params import TestbedParams
 
 FEEDBACK_KINDS = ("current", "sensor")
@@ -35,11 +33,8 @@ class CurrentFeedback:
 
     kind = "current"
 
-    def __init__(self, torque_map: CurrentToTorqueMap | None = None) -> None:
-        self.torque_map = torque_map or CurrentToTorqueMap(0.0)
-
     def read(self, plant) -> float:
-        return self.torque_map.command_nm(plant.current_torque_estimate_nm)
+        return plant.current_torque_estimate_nm
 
     def reset(self) -> None:
         """Stateless."""
@@ -73,7 +68,7 @@ def make_feedback(kind: str, params: TestbedParams | None = None, seed: int = 0,
     ``calibration`` (a :class:`sensor.calibration.Calibration`) replaces the sensor's factory calibration of
     ``params`` (e.g. the nominal unit's calibration read by a unit whose parameters drifted)."""
     if kind == "current":
-        return CurrentFeedback(CurrentToTorqueMap.from_params(params or TestbedParams()))
+        return CurrentFeedback()
     if kind == "sensor":
         return SensorFeedback(params, seed, calibration)
     raise ValueError(f"feedback = {kind!r}: valid values are {', '.join(FEEDBACK_KINDS)}")

@@ -1,9 +1,9 @@
 """Closed control loops on the simulated testbed, tick by tick, recorded as a :class:`~sim.runlog.RunLog`.
 
 Order within control tick k: read the measured torque (and angles) from the plant's state at the end of tick
-k-1, compute the command, step the plant one tick with the torque the motor delivers for it
-(:class:`controllers.motor_driver.CurrentToTorqueMap`, physics the plant does not apply yet), record the
-signals at the end of tick k. The ``tau_cmd`` column is the plant's input, i.e. the delivered torque.
+k-1, compute the command, step the plant one tick with it, record the signals at the end of tick k. The
+``tau_cmd`` column is the command sent to the driver (the plant applies the current-to-torque map,
+:mod:`sim.motor_torque`).
 """
 
 from __future__ import annotations
@@ -12,7 +12,6 @@ import numpy as np
 
 from controllers.admittance import AdmittanceController
 from controllers.feedback import TorqueFeedback
-from controllers.motor_driver import CurrentToTorqueMap
 from controllers.pi import PITorqueController
 from sensor.photoreflector import CHANNELS
 from sim.plant import SIGNAL_UNITS, Plant
@@ -78,7 +77,6 @@ def run_torque_loop(plant: Plant, controller: PITorqueController, feedback: Torq
     out, times, measured = np.empty((n, len(SIGNAL_UNITS))), np.empty(n), np.empty(n)
     bar = Progress(progress_label, n, plant.params.simulation.control_period_s) if progress_label else None
     use_hub = bool(np.any(tau_hub))
-    delivered = CurrentToTorqueMap.from_params(plant.params).delivered_nm
     volts = np.empty((n, CHANNELS)) if feedback.kind == "sensor" else None
     for k in range(n):
         measured[k] = feedback.read(plant)
@@ -87,7 +85,7 @@ def run_torque_loop(plant: Plant, controller: PITorqueController, feedback: Torq
         command = controller.step(tau_ref[k], measured[k])
         if use_hub:
             apply_hub_torque(plant, tau_hub[k])
-        plant.step(delivered(command), tau_ext[k])
+        plant.step(command, tau_ext[k])
         times[k] = plant.time_s
         plant.read_signals(out[k])
         if bar is not None and (k % PROGRESS_EVERY_TICKS == PROGRESS_EVERY_TICKS - 1 or k == n - 1):
@@ -130,7 +128,6 @@ def run_admittance_loop(plant: Plant, controller: AdmittanceController, feedback
     out, times = np.empty((n, len(SIGNAL_UNITS))), np.empty(n)
     measured, hand_torque, theta_ref, omega_ref = (np.empty(n) for _ in range(4))
     bar = Progress(progress_label, n, plant.params.simulation.control_period_s) if progress_label else None
-    delivered = CurrentToTorqueMap.from_params(plant.params).delivered_nm
     volts = np.empty((n, CHANNELS)) if feedback.kind == "sensor" else None
     for k in range(n):
         measured[k] = feedback.read(plant)
@@ -139,7 +136,7 @@ def run_admittance_loop(plant: Plant, controller: AdmittanceController, feedback
         theta_ref[k], omega_ref[k] = controller.reference_angle_rad, controller.reference_velocity_rad_s
         command = controller.step(-measured[k], plant.motor_angle_rad, plant.motor_velocity_rad_s)
         hand_torque[k] = hand.torque_nm(k, plant.output_angle_rad, plant.output_velocity_rad_s)
-        plant.step(delivered(command), hand_torque[k])
+        plant.step(command, hand_torque[k])
         times[k] = plant.time_s
         plant.read_signals(out[k])
         if bar is not None and (k % PROGRESS_EVERY_TICKS == PROGRESS_EVERY_TICKS - 1 or k == n - 1):

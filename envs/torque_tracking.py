@@ -10,7 +10,6 @@ import numpy as np
 from gymnasium import spaces
 
 from controllers.feedback import make_feedback
-from controllers.motor_driver import CurrentToTorqueMap
 from envs.randomization import check_scale, randomize_params
 from envs.references import TASK_CHOICES, TASKS, Reference, make_reference
 from experiments.common import LOADCELL_READING_NOISE_N
@@ -36,8 +35,8 @@ class TorqueTrackingEnv(gym.Env):
     controller reads and commands a motor torque; the goal is that the torque the load cell measures follows
     a reference (the paper's step, sine and square tasks, or random ones). One step is exactly one tick of the
     loop the experiments run (:func:`controllers.loop.run_torque_loop`): read the sensors at the end of the
-    previous tick, command, the motor delivers ``CurrentToTorqueMap.delivered_nm(command)`` (the driver's
-    current-to-torque droop), the plant advances one control period (``n_substeps`` physics steps).
+    previous tick, command, the plant advances one control period (``n_substeps`` physics steps) with the
+    torque the motor delivers for the command (the current-to-torque droop of :mod:`sim.motor_torque`).
 
     ## Action Space
     ``Box(-peak, peak, (1,), float32)`` with peak = ``params.motor.peak_torque_nm`` (18 N·m by default).
@@ -164,7 +163,6 @@ class TorqueTrackingEnv(gym.Env):
         self._sensor = make_feedback("sensor", sensor_params, int(rng.integers(2**31)), self._calibration)
         self._current = make_feedback("current", self.params)
         self._loadcell_noise = self._draw_loadcell_noise(np.random.default_rng(int(rng.integers(2**63))))
-        self._delivered = CurrentToTorqueMap.from_params(self.params).delivered_nm
         self._peak = self.params.motor.peak_torque_nm
         self._scale = self.reference.scale_nm
         self._reference_nm = self.reference.values_nm.tolist()  # Python floats: cheaper to index per step
@@ -181,7 +179,7 @@ class TorqueTrackingEnv(gym.Env):
         ref = self._reference_nm[self._k]
         plant = self.plant
         try:
-            plant.step(self._delivered(command))
+            plant.step(command)
         except SimulationDiverged as exc:
             return self._obs.copy(), 0.0, True, False, {"diverged": True, "message": str(exc)}
         if self.fixture == "locked":

@@ -63,8 +63,8 @@ class MotorParams:
         0.015, "1/(N·m)", "tuned: identified against the paper's Tables VI-VII by experiments/identify_defaults.py "
         "(grid 0.012/0.015; the 10 N·m sine sets it). Torque per ampere falls as β·|τ| by magnetic saturation, "
         "τ = τ_cmd·(1 - β·|τ_cmd|), while the driver's estimate assumes the nominal K_t (paper Sec. V-A: the "
-        "current-based estimate 'exhibits nonlinearity'); 0.015 is 15 % at 10 N·m, 27 % at the 18 N·m peak. Applied by controllers.motor_driver in the closed-loop "
-        "runs (not yet by sim.plant)", 0.0, 0.025)
+        "current-based estimate 'exhibits nonlinearity'); 0.015 is 15 % at 10 N·m, 27 % at the 18 N·m peak. Applied by sim.plant "
+        "(sim.motor_torque), not in the MJCF", 0.0, 0.025)
 
 
 @dataclass(frozen=True)

@@ -16,6 +16,7 @@ import numpy as np
 
 from models.gim8108_testbed.build import build_xml
 from models.gim8108_testbed.derived import derive, physics_timestep, stiffest_mode_rad_s
+from sim.motor_torque import CurrentToTorqueMap
 from sim.params import TestbedParams
 from sim.thermal import ThermalState
 
@@ -31,7 +32,7 @@ SIGNAL_UNITS: dict[str, str] = {
     "temperature": "°C",  # TMP117 reading of the board temperature
     "tau_flexure": "N·m",  # true torque through the flexure
     "tau_current_estimate": "N·m",  # the driver's N·K_t·i
-    "current": "A",
+    "current": "A",  # the current the driver measures (under saturation more than the torque-producing one)
     "backlash_angle": "rad",
 }
 
@@ -91,6 +92,9 @@ class Plant:
         self._c_loadcell = float(np.ravel(m.tendon_damping[self._tendon])[0])
         self._load_coeff = self.params.friction.load_friction_coefficient
         self._current_to_torque = self._gear * self.params.motor.torque_constant_nm_per_a
+        self._torque_map = CurrentToTorqueMap.from_params(self.params)
+        self._delivered = self._torque_map.delivered_nm
+        self._peak_nm = self.params.motor.peak_torque_nm
         self._frictionloss = m.dof_frictionloss
         th = self.params.thermal
         self._thermal_ticks = max(1, round(th.update_period_s / control_period))
@@ -140,11 +144,14 @@ class Plant:
 
     def step(self, tau_cmd_nm: float, tau_ext_nm: float = 0.0) -> None:
         """Advance one control tick with a motor torque command [N·m, output side] and an external torque
-        on the lever [N·m]. The command is clipped to ±motor.peak_torque_nm by the actuator's range."""
+        on the lever [N·m]. The driver limits the command to ±motor.peak_torque_nm (its current limit), and
+        the motor delivers ``CurrentToTorqueMap.delivered_nm`` of that (magnetic saturation,
+        ``motor.torque_saturation_per_nm``)."""
         d = self.data
         self._tau_cmd = tau_cmd_nm
+        peak = self._peak_nm
         ctrl = self._ctrl
-        ctrl[self._u_motor] = tau_cmd_nm / self._gear
+        ctrl[self._u_motor] = self._delivered(min(max(tau_cmd_nm, -peak), peak)) / self._gear
         ctrl[self._u_external] = tau_ext_nm
         # _set_load_friction inlined (one call less per tick); .item() reads a Python float, whose arithmetic
         # is cheaper than numpy scalars' (and rounds alike)
@@ -183,11 +190,11 @@ class Plant:
         qpos, qvel = self._qpos, self._qvel
         lever = self._ten_length[self._tendon]
         lever_v = self._ten_velocity[self._tendon]
-        current = self._act[self._act_current]
+        estimate = self.current_torque_estimate_nm
         out[:] = (self._tau_cmd, lever, lever_v, qpos[self._q_motor], qvel[self._dof_motor],
                   (self._k_loadcell * lever + self._c_loadcell * lever_v) / self.params.lever.length_m,
                   self.tmp117_temperature_c, -self._k_flexure * qpos[self._q_flexure],
-                  self._current_to_torque * current, current, qpos[self._q_backlash])
+                  estimate, estimate / self._current_to_torque, qpos[self._q_backlash])
 
     # ------------------------------------------------------------------ named accessors (SI)
     @property
@@ -242,14 +249,15 @@ class Plant:
 
     @property
     def motor_current_a(self) -> float:
-        """Armature (q-axis) current [A]."""
-        return self._act.item(self._act_current)
+        """Armature (q-axis) current the driver measures [A]."""
+        return self.current_torque_estimate_nm / self._current_to_torque
 
     @property
     def current_torque_estimate_nm(self) -> float:
         """The driver's torque estimate from its current sensor, N·K_t·i [N·m, output side]: blind to gear
-        friction and backlash."""
-        return self._current_to_torque * self.motor_current_a
+        friction, backlash and the current-to-torque nonlinearity (the dcmotor's current state is the
+        torque-producing current; the driver's is the command that delivers it)."""
+        return self._torque_map.command_nm(self._current_to_torque * self._act.item(self._act_current))
 
     @property
     def torque_command_nm(self) -> float:

@@ -148,8 +148,7 @@ def test_action_is_clipped_to_the_motor_peak_torque():
     assert env.action_space.low[0] == -peak and env.action_space.high[0] == peak
     env.reset(seed=0)
     assert env.step(np.array([1e3], np.float32))[4]["command_nm"] == peak
-    assert env.plant.torque_command_nm == pytest.approx(peak * (1 - TestbedParams().motor.torque_saturation_per_nm
-                                                                 * peak))  # delivered through the driver's map
+    assert env.plant.torque_command_nm == peak
 
 
 def test_reward_is_the_normalised_squared_load_cell_error_plus_control_cost():

@@ -12,6 +12,7 @@ from sim.params import TestbedParams
 from sim.plant import Plant
 
 P = TestbedParams()
+P_LINEAR_MOTOR = P.replace(motor={"torque_saturation_per_nm": 0.0})  # delivers what it is commanded
 D = derive(P)
 TICK_S = P.simulation.control_period_s
 
@@ -155,7 +156,7 @@ def test_load_dependent_friction_grows_with_transmitted_torque():
 
 def test_load_friction_holds_a_torque_difference_without_creep():
     """Stuck under 10 N·m, lowering the command by less than the load friction leaves the gear in place."""
-    plant = Plant(P, "locked")
+    plant = Plant(P_LINEAR_MOTOR, "locked")
     hold(plant, 10.0, 0.5)
     start = plant.motor_angle_rad
     hold(plant, 9.7, 1.0)  # 0.3 N·m below: less than breakaway + (1-η)·10 N·m
@@ -180,10 +181,25 @@ def test_command_delay_postpones_the_current_response():
     assert plant.current_torque_estimate_nm == pytest.approx(1.0 - math.exp(-(TICK_S - delay) / tau_i), rel=0.02)
 
 
+@pytest.mark.parametrize("command_nm", [-12.0, 10.0, 30.0])
+def test_motor_delivers_the_current_to_torque_map_of_the_limited_command(command_nm):
+    """Held on the locked lever, the flexure carries τ(1 - β|τ|) of the command τ limited to ±18 N·m (closed form),
+    less or more the friction the gear can hold; the driver's estimate reports the limited command itself."""
+    plant = Plant(P, "locked")
+    hold(plant, command_nm, 0.5)
+    limited = min(max(command_nm, -P.motor.peak_torque_nm), P.motor.peak_torque_nm)
+    delivered = limited * (1.0 - P.motor.torque_saturation_per_nm * abs(limited))
+    fr = P.friction
+    holdable = fr.breakaway_torque_nm + fr.load_friction_coefficient * abs(delivered)
+    assert abs(plant.flexure_torque_nm - delivered) <= holdable
+    assert abs(limited - delivered) > 2 * holdable  # so the linear motor would fail the first assertion
+    assert plant.current_torque_estimate_nm == pytest.approx(limited, rel=1e-9)
+
+
 def test_motor_torque_saturates_at_the_paper_peak():
     """A 30 N·m command gives the 18 N·m peak motor torque (paper Sec. II); the load cell sees it less or more
     the friction the gear can hold at that load."""
-    plant = Plant(P, "locked")
+    plant = Plant(P_LINEAR_MOTOR, "locked")
     hold(plant, 30.0, 0.5)
     assert plant.current_torque_estimate_nm == pytest.approx(P.motor.peak_torque_nm, rel=1e-9)
     fr = P.friction

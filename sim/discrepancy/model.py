@@ -12,7 +12,8 @@ Channels (each a residual = measured - model, filtered, NaN where a sample does 
 
 ``effort`` [N·m | N]
     Motor-side balance, output-referred: ``τ_m(u) + cogging = J·q̈_m + F_gear + τ_trans`` with the delivered
-    torque ``τ_m`` = command through dead time (+ current-loop lag), roll-off and saturation; the gear
+    torque ``τ_m`` = command through dead time (+ current-loop lag), roll-off, saturation and (testbed) the
+    motor's current-to-torque map (``sim.motor_torque``); the gear
     friction ``F_gear`` = LuGre (bristle state driven by the measured motion, integrated exactly per sample, and
     its rate at the sample time, as MuJoCo's dcmotor applies them at its finer physics step) + viscous
     + asymmetry + load-dependent dry friction ``μ·|τ_trans|`` (while stuck: at the band's edge against the
@@ -221,6 +222,7 @@ class Surrogate:
         """Effort reaching the joint from the command, filtered [N·m | N]."""
         d = self.data
         lag = self.const.get("current_lag", 0.0)
+        beta = self.const.get("torque_saturation", 0.0)
         key = (theta["delay"], theta["torque_rolloff"], theta["effort_gain"], theta["peak_effort"])
 
         def compute() -> np.ndarray:
@@ -228,6 +230,8 @@ class Surrogate:
             u = np.clip(d.u, -peak, peak)
             if theta["torque_rolloff"] and math.isfinite(peak):
                 u = u * (1.0 - theta["torque_rolloff"] * (u / peak) ** 2)
+            if beta:  # the testbed motor's own current-to-torque map (sim.motor_torque), after any roll-off
+                u = u * (1.0 - beta * np.abs(u))
             # command k is held during (t_k - dt, t_k]: place it at the hold's centre, then delay and lag it
             shifted = np.interp(d.t - (theta["delay"] + lag), d.t - 0.5 * d.dt, u)
             return d.filt(theta["effort_gain"] * shifted)

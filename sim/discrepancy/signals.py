@@ -223,6 +223,7 @@ def testbed_constants(rig: Rig) -> dict[str, float]:
     d = derive(p)
     return {"lever_inertia": d.lever_side_inertia_kgm2, "flexure_stiffness": d.flexure_stiffness_nm_per_rad,
             "current_lag": p.motor.current_loop_time_constant_s,
+            "torque_saturation": p.motor.torque_saturation_per_nm,
             "rotor_reflected_inertia": d.reflected_rotor_inertia_kgm2,
             "presliding_damping_ratio": p.friction.presliding_damping_ratio,
             "calibration_temperature": p.photoreflector.reference_temperature_c,

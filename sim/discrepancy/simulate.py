@@ -8,8 +8,9 @@ Effects reach MuJoCo as natively as MuJoCo allows:
   written into the compiled model: amplitude/N at the output, period 2π/(N·poles) of the output angle;
 - torque-constant roll-off: the command is mapped before it reaches the plant (a memoryless map of the command
   is what a saturating torque constant does to a torque-commanded drive);
-- asymmetric friction: a constant motor torque -Δ/2 (levels F_c ± Δ/2 by direction are exactly a constant torque
-  opposing positive motion); MuJoCo's LuGre is symmetric;
+- asymmetric friction: a constant torque -Δ/2 on the motor joint (levels F_c ± Δ/2 by direction are exactly a
+  constant torque opposing positive motion; MuJoCo's LuGre is symmetric), applied beside the command, not
+  through it, so that the testbed motor's current-to-torque map (``sim.motor_torque``) does not scale it;
 - gravity: a torque on the lever (``external`` actuator) from the lever angle of the previous tick (one control
   tick late: gravity changes slowly against 1 ms);
 - sensor effects act on the sensor reading, not the mechanics (:func:`sensor_reading`).
@@ -57,12 +58,10 @@ def _effect(rig: Rig, name: str) -> dict[str, float] | None:
 
 
 def command_map(rig: Rig) -> Callable[[float], float]:
-    """Effort command -> what the drive delivers before its dynamics (roll-off, asymmetry offset)."""
+    """Effort command -> what the drive is asked for before its dynamics (the roll-off effect)."""
     rolloff = _effect(rig, "torque_constant_nonlinearity")
-    asym = _effect(rig, "asymmetric_friction")
     peak = rig.params.motor.peak_torque_nm if rig.model == "testbed" else rig.rigid.get("peak_effort", math.inf)
     c = rolloff["torque_rolloff"] if rolloff else 0.0
-    offset = -0.5 * asym["asymmetry"] if asym else 0.0
     if c and not math.isfinite(peak):
         raise ValueError("torque_constant_nonlinearity needs the rig's peak effort (peak_effort)")
 
@@ -70,9 +69,15 @@ def command_map(rig: Rig) -> Callable[[float], float]:
         if c:
             u = min(max(u, -peak), peak)
             u = u * (1.0 - c * (u / peak) ** 2)
-        return u + offset
+        return u
 
     return mapped
+
+
+def asymmetry_offset(rig: Rig) -> float:
+    """The constant torque of asymmetric friction, -Δ/2 [N·m | N] (0 without the effect)."""
+    asym = _effect(rig, "asymmetric_friction")
+    return -0.5 * asym["asymmetry"] if asym else 0.0
 
 
 def testbed_plant(rig: Rig) -> Plant:
@@ -106,6 +111,7 @@ def run_testbed(rig: Rig, command: CommandFn, n_ticks: int, *, backlash_side: in
     if initial is not None:
         initial(plant.model, plant.data)
         mujoco.mj_forward(plant.model, plant.data)
+    plant.data.joint("motor").qfrc_applied[0] = asymmetry_offset(rig)  # output side; cleared by Plant.reset
     cmd_map = command_map(rig)
     grav = _effect(rig, "gravity")
     names = list(SIGNAL_UNITS)
@@ -172,7 +178,7 @@ def run_rigid(rig: Rig, command: CommandFn, n_ticks: int, *, initial: InitialSta
     if initial is not None:
         initial(model, data)
         mujoco.mj_forward(model, data)
-    cmd_map = command_map(rig)
+    cmd_map, offset = command_map(rig), asymmetry_offset(rig)
     grav = _effect(rig, "gravity")
     cog = _effect(rig, "cogging")
     base_gravity = rig.rigid.get("gravity_amplitude", 0.0)
@@ -188,7 +194,7 @@ def run_rigid(rig: Rig, command: CommandFn, n_ticks: int, *, initial: InitialSta
             load += amplitude if rig.joint == "slide" else amplitude * math.sin(q - angle)
         if cog:
             load -= cog["cogging_amplitude"] * math.sin(2 * math.pi * q / cog["cogging_period"] + cog["cogging_phase"])
-        data.ctrl[drive] = cmd_map(u)
+        data.ctrl[drive] = cmd_map(u) + offset
         data.ctrl[external] = -load
         mujoco.mj_step(model, data, RIGID_SUBSTEPS)
         state["q"], state["qd"] = float(data.qpos[0]), float(data.qvel[0])

@@ -94,8 +94,8 @@ BASELINE_RANGES: dict[tuple[str, str], tuple[float, float]] = {
     # [1] 1 - η of one planetary stage of catalogue efficiency 0.85-0.98 (identify_defaults: 0.03, 0.05;
     # sim.params default 0.05, before 2026-11-23 0.1)
     ("friction", "load_friction_coefficient"): (0.02, 0.15),
-    # 1/(N·m): the whole valid range of sim.params; it acts only in controllers.motor_driver (closed-loop runs of
-    # experiments.*), not in sim.plant, so these open-loop/PI logs do not depend on it (drawn to show that)
+    # 1/(N·m): the whole valid range of sim.params; sim.plant applies it (sim.motor_torque) and the surrogate
+    # carries it as a constant of the rig, so a baseline with any value must come out clean
     ("motor", "torque_saturation_per_nm"): field_range(TestbedParams(), "motor", "torque_saturation_per_nm"),
     # rad: 0.5 mrad (identify_defaults' grid-best, the sim.params default) to 3.5 mrad (0.2°, the default before)
     ("backlash", "width_rad"): (0.5e-3, 3.5e-3),

@@ -1,4 +1,4 @@
-"""The motor driver's current-to-torque map: what the GIM8108 delivers for a torque command, and what its
+"""The GIM8108's current-to-torque map: what the motor delivers for a torque command, and what the driver's
 current-based estimate reports.
 
 The driver turns a torque command τ_cmd into a current i = τ_cmd / (N·K_t) with its current loop and reports
@@ -7,10 +7,12 @@ N·K_t·i as its torque estimate. The torque the magnets actually produce per am
 
     τ_delivered = τ_cmd · (1 - β |τ_cmd|)          β = motor.torque_saturation_per_nm [1/(N·m)]
 
-so the estimate (linear in the current) over-reports by τ_cmd - τ_delivered. This is physics the plant does
-not model yet (``sim.plant`` feeds the command to MuJoCo's ``dcmotor`` as is); until it does, the closed-loop
-runners of :mod:`controllers.loop` apply the map on the command path and invert it on the estimate, and say
-so in the run's metadata. Remove this module once ``Plant`` applies ``motor.torque_saturation_per_nm``.
+so the estimate (linear in the current) over-reports by τ_cmd - τ_delivered.
+
+Written here rather than in the MJCF because MuJoCo's ``dcmotor`` has one torque constant (``motorconst`` may
+differ from the back-EMF constant, but not vary with current): :class:`sim.plant.Plant` maps the command with
+:meth:`CurrentToTorqueMap.delivered_nm` before the dcmotor, whose current state is then the torque-producing
+current, and recovers the driver's current with :meth:`CurrentToTorqueMap.command_nm`.
 """
 
 from __future__ import annotations

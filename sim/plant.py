@@ -163,7 +163,7 @@ class Plant:
         # expected value or a non-finite state means the run diverged.
         if d.time < t_expected - self._half_step_s or not math.isfinite(self._qvel[self._dof_motor]):
             raise SimulationDiverged(self._divergence_message(t_expected))
-        current = self._act.item(self._act_current)
+        current = self.motor_current_a  # the winding carries the driver's current, not just its torque-producing part
         self._current_sq_sum += current * current
         self._ticks += 1
         if self._ticks % self._thermal_ticks == 0:

@@ -10,6 +10,7 @@ from sim.characterize import (free_vibration_peak_hz, linearizable_plant, linear
                               measure_breakaway)
 from sim.params import TestbedParams
 from sim.plant import Plant
+from sim.thermal import ThermalState
 
 P = TestbedParams()
 P_LINEAR_MOTOR = P.replace(motor={"torque_saturation_per_nm": 0.0})  # delivers what it is commanded
@@ -205,3 +206,16 @@ def test_motor_torque_saturates_at_the_paper_peak():
     fr = P.friction
     holdable = fr.breakaway_torque_nm + fr.load_friction_coefficient * P.motor.peak_torque_nm
     assert abs(plant.loadcell_force_n * P.lever.length_m - P.motor.peak_torque_nm) <= holdable
+
+
+def test_copper_loss_is_that_of_the_current_the_driver_commands():
+    """Held at 10 N·m for 2 s, the winding warms as the thermal network does with R·i², i = τ_cmd/(N·K_t): the
+    current the driver commands, 1/(1 - 10β)² = 1.38x the loss of the torque-producing current."""
+    plant = Plant(P, "locked")
+    ambient = plant.thermal.temperatures_c.copy()
+    hold(plant, 10.0, 2.0)
+    current_a = 10.0 / (P.motor.gear_ratio * P.motor.torque_constant_nm_per_a)
+    reference = ThermalState(P.thermal)
+    reference.advance(2.0, P.motor.winding_resistance_ohm * current_a**2)
+    rise = plant.thermal.temperatures_c[1] - ambient[1]
+    assert rise == pytest.approx(reference.temperatures_c[1] - ambient[1], rel=0.01)

@@ -35,8 +35,8 @@ def test_rule_3_measures_the_move_from_the_reference_when_given():
 
 @pytest.fixture(scope="module")
 def fine_encoder_sensor_feedback_log():
-    """A baseline sensor-feedback PI log with the 22-bit motor encoder (the surrogate's Coulomb bias, seed 31)."""
-    return hidden_effect_log("locked_pi_sensor", [], 31, DURATION_S, motor_encoder_counts=FINE_MOTOR_ENCODER_COUNTS)
+    """A baseline sensor-feedback PI log with the 22-bit motor encoder (the surrogate's Coulomb bias, seed 35)."""
+    return hidden_effect_log("locked_pi_sensor", [], 35, DURATION_S, motor_encoder_counts=FINE_MOTOR_ENCODER_COUNTS)
 
 
 def test_the_model_log_of_a_baseline_log_retraces_its_motion(fine_encoder_sensor_feedback_log):
@@ -58,18 +58,20 @@ def test_the_model_log_of_a_baseline_log_retraces_its_motion(fine_encoder_sensor
 
 
 def test_the_surrogate_bias_on_a_baseline_log_is_not_reported(fine_encoder_sensor_feedback_log):
-    """The Coulomb fit is 13 % off the model's value on the model's own log as well: not a discrepancy.
+    """The Coulomb fit is 12 % off the model's value on the model's own log as well: not a discrepancy.
 
-    Its held-out gain is 9 % (20 % before the stuck load friction took the band's edge where the gear moves),
-    under the 10 % rule; the rule is lowered here so that rule 3 is what stands between this bias and a report.
+    Its held-out gain (7 %) and consistency fail the other rules first; they are relaxed here so that rule 3 is
+    what stands between this bias and a report.
     """
     log, rig, _ = fine_encoder_sensor_feedback_log
-    result = analyse(log, rig, AnalysisConfig(min_relative_gain=0.05))
+    relaxed = AnalysisConfig(min_ic_drop=0.0, min_relative_gain=0.0, min_consistency_t=0.0)
+    result = analyse(log, rig, relaxed)
     assert result.found == []
     coulomb = next(s for s in result.baseline["candidates"][0] if s["effect"] == "coulomb_friction")
     fitted, reference = coulomb["parameters"]["coulomb"], coulomb["model_log_parameters"]["coulomb"]
     model_value = rig.params.friction.coulomb_torque_nm
-    assert abs(fitted - model_value) > 0.1 * model_value  # rule 3 against the model's value would accept it
+    # rule 3 against the model's value would accept it
+    assert abs(fitted - model_value) > relaxed.min_parameter_change * model_value
     assert abs(fitted - reference) < 0.02 * model_value
 
 

@@ -11,8 +11,8 @@ so the estimate (linear in the current) over-reports by τ_cmd - τ_delivered.
 
 Written here rather than in the MJCF because MuJoCo's ``dcmotor`` has one torque constant (``motorconst`` may
 differ from the back-EMF constant, but not vary with current): :class:`sim.plant.Plant` maps the command with
-:meth:`CurrentToTorqueMap.delivered_nm` before the dcmotor, whose current state is then the torque-producing
-current, and recovers the driver's current with :meth:`CurrentToTorqueMap.command_nm`.
+:meth:`CurrentToTorqueMap.delivered_nm` (inlined in ``Plant.step``) before the dcmotor, whose current state is
+then the torque-producing current, and recovers the driver's current with :meth:`CurrentToTorqueMap.command_nm`.
 """
 
 from __future__ import annotations

@@ -40,9 +40,8 @@ class CurrentToTorqueMap:
     def command_nm(self, delivered_nm: float) -> float:
         """The command that delivers ``delivered_nm`` [N·m] (the inverse map, on its monotonic branch)."""
         beta = self.saturation_per_nm
-        if beta == 0.0:
-            return delivered_nm
         root = 1.0 - 4.0 * beta * abs(delivered_nm)
         if root < 0.0:  # beyond the map's maximum 1/(4β): the largest command that maps there
             return math.copysign(1.0 / (2.0 * beta), delivered_nm)
-        return math.copysign((1.0 - math.sqrt(root)) / (2.0 * beta), delivered_nm)
+        # (1 - √root)/(2β) with the sign, rationalised: no cancellation at small torque, and β = 0 needs no case
+        return 2.0 * delivered_nm / (1.0 + math.sqrt(root))

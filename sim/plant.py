@@ -94,6 +94,7 @@ class Plant:
         self._current_to_torque = self._gear * self.params.motor.torque_constant_nm_per_a
         self._torque_map = CurrentToTorqueMap.from_params(self.params)
         self._beta = self._torque_map.saturation_per_nm
+        self._command_nm = self._torque_map.command_nm
         self._peak_nm = self.params.motor.peak_torque_nm
         self._frictionloss = m.dof_frictionloss
         th = self.params.thermal
@@ -194,7 +195,7 @@ class Plant:
         qpos, qvel = self._qpos, self._qvel
         lever = self._ten_length[self._tendon]
         lever_v = self._ten_velocity[self._tendon]
-        estimate = self.current_torque_estimate_nm
+        estimate = self._command_nm(self._current_to_torque * self._act.item(self._act_current))  # inlined property
         out[:] = (self._tau_cmd, lever, lever_v, qpos[self._q_motor], qvel[self._dof_motor],
                   (self._k_loadcell * lever + self._c_loadcell * lever_v) / self.params.lever.length_m,
                   self.tmp117_temperature_c, -self._k_flexure * qpos[self._q_flexure],
@@ -261,7 +262,7 @@ class Plant:
         """The driver's torque estimate from its current sensor, N·K_t·i [N·m, output side]: blind to gear
         friction, backlash and the current-to-torque nonlinearity (the dcmotor's current state is the
         torque-producing current; the driver's is the command that delivers it)."""
-        return self._torque_map.command_nm(self._current_to_torque * self._act.item(self._act_current))
+        return self._command_nm(self._current_to_torque * self._act.item(self._act_current))
 
     @property
     def torque_command_nm(self) -> float:

@@ -101,13 +101,13 @@ def test_presliding_is_declared_unrevealable_at_the_encoder_resolution():
 
 # Presliding with a fine motor encoder (22 bits per motor turn), hidden in the closed-loop current-feedback log:
 # the torque loop holds the motor stuck through many small load reversals. Measured relative errors of σ0 on
-# seeds 21/22/23: -4.2 %, -2.9 %, -3.9 % (seeds 24-27 outside the suite: -4.4, -2.9, -3.0, -3.4 %; an ideal
-# encoder -5.7 to -6.3 %). Before session 13 +14.3 %, +11.3 %, +13.4 % (24-27 up to +19.2 %): the surrogate let
-# the load-dependent friction take any value in its band on presliding samples, where MuJoCo's frictionloss row
-# sits at the band's edge (docs/discrepancy_limits.md, "Presliding stiffness"). Tolerance 15 %.
+# seeds 21/22/23: -4.6 %, -3.4 %, -4.4 % (seeds 24-27 outside the suite: -4.9, -3.4, -3.3, -3.8 %; an ideal
+# encoder -6.7 to -7.5 %). Before session 13 +14.3 %, +11.3 %, +13.4 % (24-27 up to +19.2 %) against a 15 %
+# tolerance: the surrogate let the load-dependent friction take any value in its band on presliding samples,
+# where MuJoCo's frictionloss row sits at the band's edge (docs/discrepancy_limits.md, "Presliding stiffness").
 # The open-loop locked swing does not reveal it even with an ideal encoder: σ0 9 % off and a 8.4 % held-out
 # gain, below the 10 % rule (seed 21, measured before session 13).
-PRESLIDING_TOLERANCE = 0.15
+PRESLIDING_TOLERANCE = 0.08
 
 
 @pytest.mark.slow

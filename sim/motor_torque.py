@@ -20,6 +20,8 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
+import numpy as np
+
 from sim.params import TestbedParams
 
 
@@ -33,8 +35,8 @@ class CurrentToTorqueMap:
     def from_params(cls, params: TestbedParams) -> "CurrentToTorqueMap":
         return cls(params.motor.torque_saturation_per_nm)
 
-    def delivered_nm(self, command_nm: float) -> float:
-        """Torque the motor produces for a command [N·m]."""
+    def delivered_nm(self, command_nm: float | np.ndarray) -> float | np.ndarray:
+        """Torque the motor produces for a command [N·m] (a float or an array of them)."""
         return command_nm * (1.0 - self.saturation_per_nm * abs(command_nm))
 
     def command_nm(self, delivered_nm: float) -> float:

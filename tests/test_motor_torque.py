@@ -5,8 +5,9 @@ from hypothesis import given
 from hypothesis import strategies as st
 
 from sim.motor_torque import CurrentToTorqueMap
+from sim.params import TestbedParams
 
-BETA_PER_NM = 0.015  # the sim.params default [1/(N·m)]
+BETA_PER_NM = TestbedParams().motor.torque_saturation_per_nm  # the default, 0.015 /(N·m)
 
 
 @given(command_nm=st.floats(-1.0 / (2.0 * BETA_PER_NM), 1.0 / (2.0 * BETA_PER_NM)))

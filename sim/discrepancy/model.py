@@ -41,6 +41,7 @@ from models.gim8108_testbed.derived import derive
 from sim.discrepancy.effects import NEUTRAL
 from sim.discrepancy.rig import Rig
 from sim.discrepancy.signals import AnalysisConfig, Prepared, testbed_constants
+from sim.motor_torque import CurrentToTorqueMap
 
 CHANNEL_UNITS = {"effort": ("N·m", "N"), "sensor": ("N·m", "N·m"), "kinematic": ("rad", "m")}
 MIN_DECAY = 1e-12  # smallest per-sample decay factor of the bristle state [1]
@@ -230,8 +231,8 @@ class Surrogate:
             u = np.clip(d.u, -peak, peak)
             if theta["torque_rolloff"] and math.isfinite(peak):
                 u = u * (1.0 - theta["torque_rolloff"] * (u / peak) ** 2)
-            if beta:  # the testbed motor's own current-to-torque map (sim.motor_torque), after any roll-off
-                u = u * (1.0 - beta * np.abs(u))
+            if beta:  # the testbed motor's own current-to-torque map, after any roll-off
+                u = CurrentToTorqueMap(beta).delivered_nm(u)
             # command k is held during (t_k - dt, t_k]: place it at the hold's centre, then delay and lag it
             shifted = np.interp(d.t - (theta["delay"] + lag), d.t - 0.5 * d.dt, u)
             return d.filt(theta["effort_gain"] * shifted)
@@ -325,9 +326,10 @@ class Surrogate:
             tau = self.transmitted(theta)
             rest = rest - tau - self.friction(theta)
             cap = theta["load_coefficient"] * np.abs(tau)
-            stuck = rest - cap * self.stuck_edge
+            stuck_rest = rest - cap * self.stuck_edge
             band = cap * self.stuck_band
-            out["effort"] = np.where(self.stuck, stuck - np.clip(stuck, -band, band), rest - cap * self.slide_sign)
+            out["effort"] = np.where(self.stuck, stuck_rest - np.clip(stuck_rest, -band, band),
+                                     rest - cap * self.slide_sign)
             if "sensor" in self.channels:
                 out["sensor"] = d.tau_sensor - self.sensor_model(theta, tau)
             if "kinematic" in self.channels:

@@ -34,6 +34,7 @@ from controllers.loop import run_torque_loop
 from controllers.pi import PITorqueController
 from envs import ENV_ID
 from sensor.readout import factory_calibration
+from sim.motor_torque import CurrentToTorqueMap
 from sim.params import TestbedParams
 from sim.plant import Plant
 from sim.recording import DEFAULT_POSE_RATE_HZ, record_logs
@@ -147,7 +148,7 @@ def recording_overhead(duration_s: float, repeats: int) -> dict[str, float]:
         for i in range(repeats):
             plant = Plant(p, "locked")
             start = time.perf_counter()
-            log = run_torque_loop(plant, PITorqueController(p.motor.peak_torque_nm), make_feedback("sensor", p, 0),
+            log = run_torque_loop(plant, PITorqueController(CurrentToTorqueMap.from_params(p).command_limit_nm), make_feedback("sensor", p, 0),
                                   reference, meta={})
             runs.append(time.perf_counter() - start)
             start = time.perf_counter()

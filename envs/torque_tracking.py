@@ -14,6 +14,7 @@ from envs.randomization import check_scale, randomize_params
 from envs.references import TASK_CHOICES, TASKS, Reference, make_reference
 from experiments.common import LOADCELL_READING_NOISE_N
 from sensor.readout import factory_calibration
+from sim.motor_torque import CurrentToTorqueMap
 from sim.params import TestbedParams
 from sim.plant import Plant, SimulationDiverged
 
@@ -39,11 +40,13 @@ class TorqueTrackingEnv(gym.Env):
     torque the motor delivers for the command (the current-to-torque droop of :mod:`sim.motor_torque`).
 
     ## Action Space
-    ``Box(-peak, peak, (1,), float32)`` with peak = ``params.motor.peak_torque_nm`` (18 N·m by default).
+    ``Box(-limit, limit, (1,), float32)`` with limit the driver's current limit as a torque command,
+    ``CurrentToTorqueMap.command_limit_nm``: the command that delivers ``params.motor.peak_torque_nm`` (18 N·m)
+    through the current-to-torque droop, 26.3 N·m by default.
 
     | Num | Action | Min | Max | Unit |
     |-----|--------|-----|-----|------|
-    | 0 | motor torque command, output side | -peak | peak | N·m |
+    | 0 | motor torque command, output side | -limit | limit | N·m |
 
     Actions outside the box are clipped to it (the driver's limit).
 
@@ -65,10 +68,10 @@ class TorqueTrackingEnv(gym.Env):
     Per step k, with y_k the load-cell torque at the end of the tick (force x lever length, with the load
     cell's reading noise ``LOADCELL_READING_NOISE_N`` unless ``feedback_noise=False``; in the 'free' fixture,
     which has no load cell, the true flexure torque), r_k the reference of the tick, u_k the clipped command,
-    s the episode's reward scale (largest |reference|, at least 0.01 N·m) and τ_peak the motor's peak
-    torque::
+    s the episode's reward scale (largest |reference|, at least 0.01 N·m) and u_max the driver's command
+    limit (the action box)::
 
-        reward_k = -((y_k - r_k) / s)**2 - ctrl_cost_weight * (u_k / τ_peak)**2
+        reward_k = -((y_k - r_k) / s)**2 - ctrl_cost_weight * (u_k / u_max)**2
 
     So -mean(reward) over an episode is the squared RMS tracking error relative to the reference's size
     (plus the control cost): ``s * sqrt(-mean(reward))`` is the RMS error in N·m the experiments report
@@ -134,8 +137,8 @@ class TorqueTrackingEnv(gym.Env):
         self.feedback_noise, self.domain_randomization = bool(feedback_noise), bool(domain_randomization)
         self.randomization_scale, self.ctrl_cost_weight = float(randomization_scale), float(ctrl_cost_weight)
         self.render_mode = None
-        peak = self.nominal_params.motor.peak_torque_nm
-        self.action_space = spaces.Box(-peak, peak, (1,), np.float32)
+        limit = CurrentToTorqueMap.from_params(self.nominal_params).command_limit_nm
+        self.action_space = spaces.Box(-limit, limit, (1,), np.float32)
         self.observation_space = spaces.Box(-np.inf, np.inf, (len(OBSERVATION_NAMES),), np.float64)
         # The nominal unit's factory calibration (cached per process; ~5 s the first time).
         self._calibration = factory_calibration(self.nominal_params)
@@ -163,7 +166,7 @@ class TorqueTrackingEnv(gym.Env):
         self._sensor = make_feedback("sensor", sensor_params, int(rng.integers(2**31)), self._calibration)
         self._current = make_feedback("current", self.params)
         self._loadcell_noise = self._draw_loadcell_noise(np.random.default_rng(int(rng.integers(2**63))))
-        self._peak = self.params.motor.peak_torque_nm
+        self._command_limit = CurrentToTorqueMap.from_params(self.params).command_limit_nm
         self._scale = self.reference.scale_nm
         self._reference_nm = self.reference.values_nm.tolist()  # Python floats: cheaper to index per step
         self.plant.reset(backlash_side=self.reference.first_sign)
@@ -175,7 +178,7 @@ class TorqueTrackingEnv(gym.Env):
     def step(self, action):
         if self.reference is None:
             raise RuntimeError("call reset() before step()")
-        command = min(max(self._action_value(action), -self._peak), self._peak)
+        command = min(max(self._action_value(action), -self._command_limit), self._command_limit)
         ref = self._reference_nm[self._k]
         plant = self.plant
         try:
@@ -190,7 +193,7 @@ class TorqueTrackingEnv(gym.Env):
             output = plant.flexure_torque_nm
         self._k += 1
         error = output - ref
-        u = command / self._peak
+        u = command / self._command_limit
         reward = -(error / self._scale) ** 2 - self.ctrl_cost_weight * u * u
         truncated = self._k >= self.n_steps
         self._observe()

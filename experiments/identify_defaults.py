@@ -18,8 +18,9 @@ Grid (every value physically plausible):
   0.125 (almost no drop, 0.96: grease-dominated friction at low speed);
 * friction.load_friction_coefficient: 0.03 or 0.05 (η = 0.97 or 0.95, catalogue efficiencies of a single
   planetary stage);
-* motor.torque_saturation_per_nm: 0.012 or 0.015 (torque per ampere 12-15 % low at 10 N·m, 22-27 % at the
-  18 N·m peak: the droop of a compact outrunner driven to its peak current);
+* motor.torque_saturation_per_nm: 0.0136 or 0.0176 (τ = τ_cmd/(1 + α|τ_cmd|): torque per ampere 12-15 % low
+  at a 10 N·m command, 25-32 % at the current that delivers the 18 N·m peak: the droop of a compact outrunner
+  driven to its peak current);
 * backlash.width_rad: 0.5 or 1.0 mrad (0.03°, 0.06°: a tight planetary). A first pass over 0.5, 1.0 and
   3.5 mrad (0.2°, the earlier assumption) with the load loss at 0.1-0.2 and no torque droop ranked 3.5 mrad
   last in every combination: the impacts of crossing a wide dead band under sensor feedback make peak errors
@@ -58,7 +59,7 @@ from sim.runlog import RunLog
 
 GRID = {("friction", "coulomb_torque_nm"): (0.09, 0.125),
         ("friction", "load_friction_coefficient"): (0.03, 0.05),
-        ("motor", "torque_saturation_per_nm"): (0.012, 0.015),
+        ("motor", "torque_saturation_per_nm"): (0.0136, 0.0176),
         ("backlash", "width_rad"): (0.5e-3, 1.0e-3)}
 FIT_TABLES = ("VI", "VII")
 

@@ -35,6 +35,7 @@ from controllers.tracking import TrackingError, tracking_error
 from experiments.common import (add_experiment_args, feedback_kinds, format_rows, load_params_arg,
                                 loadcell_torque_nm, paper_row, record_rerun, write_outputs)
 from sim.figures import save_figure
+from sim.motor_torque import CurrentToTorqueMap
 from sim.params import TestbedParams
 from sim.plant import Plant
 from sim.run import run_open_loop
@@ -133,7 +134,7 @@ def run_sinusoid_case(params: TestbedParams, feedback: str, waveform: Waveform, 
     n_warmup = round(min(WARMUP_PERIODS / waveform.frequency_hz, duration_s) / dt)  # short mode: short warm-up
     t = np.arange(1, n_warmup + round(duration_s / dt) + 1) * dt
     reference = waveform.reference(t - dt)  # the reference of tick k is applied from the start of tick k
-    controller = PITorqueController(output_limit_nm=params.motor.peak_torque_nm, period_s=dt)
+    controller = PITorqueController(output_limit_nm=CurrentToTorqueMap.from_params(params).command_limit_nm, period_s=dt)
     log = run_torque_loop(plant, controller, make_feedback(feedback, params, seed), reference,
                           progress_label=f"{waveform.name}, {feedback}" if progress else None,
                           meta={"waveform": waveform.name, "seed": seed, "warmup_ticks": n_warmup})

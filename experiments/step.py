@@ -39,6 +39,7 @@ from controllers.tracking import TrackingError, tracking_error
 from experiments.common import (add_experiment_args, feedback_kinds, format_rows, load_params_arg,
                                 loadcell_torque_nm, paper_row, record_rerun, write_outputs)
 from sim.figures import save_figure
+from sim.motor_torque import CurrentToTorqueMap
 from sim.params import TestbedParams
 from sim.plant import Plant
 from sim.runlog import RunLog
@@ -135,7 +136,7 @@ class StepResult:
 
 
 def _controller(params: TestbedParams) -> PITorqueController:
-    return PITorqueController(output_limit_nm=params.motor.peak_torque_nm,
+    return PITorqueController(output_limit_nm=CurrentToTorqueMap.from_params(params).command_limit_nm,
                               period_s=params.simulation.control_period_s)
 
 

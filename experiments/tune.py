@@ -58,6 +58,7 @@ from controllers.tracking import tracking_error
 from envs.torque_tracking import OBSERVATION_NAMES, TorqueTrackingEnv
 from experiments.common import add_experiment_args, load_params_arg, record_rerun, write_outputs
 from sim.figures import save_figure
+from sim.motor_torque import CurrentToTorqueMap
 from sim.params import TestbedParams
 from sim.runlog import RunLog
 
@@ -116,8 +117,8 @@ class Episode:
 def run_episode(env: TorqueTrackingEnv, gains: Gains, task: TuneTask, seed: int, feedback: str = "sensor") -> Episode:
     """The gains' controller on ``env`` for one episode of ``task``; inf RMS if the physics diverged."""
     obs, _ = env.reset(seed=seed, options=task.options)
-    peak = env.nominal_params.motor.peak_torque_nm
-    pi = PITorqueController(output_limit_nm=peak, kp=gains.kp, ki_per_s=gains.ki_per_s, period_s=env.dt)
+    limit = CurrentToTorqueMap.from_params(env.nominal_params).command_limit_nm
+    pi = PITorqueController(output_limit_nm=limit, kp=gains.kp, ki_per_s=gains.ki_per_s, period_s=env.dt)
     i_meas, kd = FEEDBACK_OBSERVATION[feedback], gains.kd_nms_per_rad
     n = env.n_steps
     time, ref, out = np.empty(n), np.empty(n), np.empty(n)

@@ -60,10 +60,11 @@ class MotorParams:
         5.0e-4, "s", "assumed: CAN-FD transfer and driver processing of one torque command; the paper "
         "gives none", 0.0, 0.05)
     torque_saturation_per_nm: float = quantity(
-        0.015, "1/(N·m)", "tuned: identified against the paper's Tables VI-VII by experiments/identify_defaults.py "
-        "(grid 0.012/0.015; the 10 N·m sine sets it). Torque per ampere falls as β·|τ| by magnetic saturation, "
-        "τ = τ_cmd·(1 - β·|τ_cmd|), while the driver's estimate assumes the nominal K_t (paper Sec. V-A: the "
-        "current-based estimate 'exhibits nonlinearity'); 0.015 is 15 % at 10 N·m, 27 % at the 18 N·m peak. Applied by sim.plant "
+        0.0176, "1/(N·m)", "tuned: identified against the paper's Tables VI-VII by experiments/identify_defaults.py "
+        "(grid 0.0136/0.0176, 12/15 % droop at 10 N·m; the 10 N·m sine sets it). Torque per ampere falls by "
+        "magnetic saturation, τ = τ_cmd/(1 + α·|τ_cmd|), while the driver's estimate assumes the nominal K_t (paper "
+        "Sec. V-A: the current-based estimate 'exhibits nonlinearity'); 0.0176 is 15 % at 10 N·m and delivers the "
+        "18 N·m peak (Sec. II) at a 26.3 N·m command, the driver's current limit. Applied by sim.plant "
         "(sim.motor_torque), not in the MJCF", 0.0, 0.025)
 
 
@@ -372,6 +373,11 @@ def _validate_cross(p: TestbedParams) -> None:
         raise ParameterError(
             f"friction.breakaway_torque_nm = {fr.breakaway_torque_nm} N·m is larger than the motor can "
             f"overcome: valid range (0, motor.peak_torque_nm = {m.peak_torque_nm}) N·m")
+    if m.torque_saturation_per_nm * m.peak_torque_nm >= 1.0:
+        raise ParameterError(
+            f"motor.torque_saturation_per_nm = {m.torque_saturation_per_nm} 1/(N·m): the current-to-torque map "
+            f"flattens towards 1/α below motor.peak_torque_nm = {m.peak_torque_nm} N·m, so no current delivers the "
+            f"peak (valid range [0, {1.0 / m.peak_torque_nm:.4g}) 1/(N·m))")
     if p.flexure.inner_radius_m + p.flexure.beam_length_m >= p.flexure.outer_radius_m:
         raise ParameterError(
             f"flexure.beam_length_m = {p.flexure.beam_length_m} m: r_i + l must stay inside "

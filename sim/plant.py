@@ -93,9 +93,9 @@ class Plant:
         self._load_coeff = self.params.friction.load_friction_coefficient
         self._current_to_torque = self._gear * self.params.motor.torque_constant_nm_per_a
         self._torque_map = CurrentToTorqueMap.from_params(self.params)
-        self._beta = self._torque_map.saturation_per_nm
+        self._alpha = self._torque_map.saturation_per_nm
         self._command_nm = self._torque_map.command_nm
-        self._peak_nm = self.params.motor.peak_torque_nm
+        self._command_limit_nm = self._torque_map.command_limit_nm
         self._frictionloss = m.dof_frictionloss
         th = self.params.thermal
         self._thermal_ticks = max(1, round(th.update_period_s / control_period))
@@ -145,15 +145,16 @@ class Plant:
 
     def step(self, tau_cmd_nm: float, tau_ext_nm: float = 0.0) -> None:
         """Advance one control tick with a motor torque command [N·m, output side] and an external torque
-        on the lever [N·m]. The driver limits the command to ±motor.peak_torque_nm (its current limit), and
-        the motor delivers ``CurrentToTorqueMap.delivered_nm`` of that (magnetic saturation,
+        on the lever [N·m]. The driver limits the command to its current limit,
+        ``CurrentToTorqueMap.command_limit_nm`` (the command that delivers motor.peak_torque_nm), and the motor
+        delivers ``CurrentToTorqueMap.delivered_nm`` of that (magnetic saturation,
         ``motor.torque_saturation_per_nm``)."""
         d = self.data
         self._tau_cmd = tau_cmd_nm
-        peak = self._peak_nm
+        limit = self._command_limit_nm
         ctrl = self._ctrl
-        tau_nm = min(max(tau_cmd_nm, -peak), peak)
-        ctrl[self._u_motor] = tau_nm * (1.0 - self._beta * abs(tau_nm)) / self._gear  # CurrentToTorqueMap, inlined
+        tau_nm = min(max(tau_cmd_nm, -limit), limit)
+        ctrl[self._u_motor] = tau_nm / ((1.0 + self._alpha * abs(tau_nm)) * self._gear)  # CurrentToTorqueMap, inlined
         ctrl[self._u_external] = tau_ext_nm
         # _set_load_friction inlined (one call less per tick); .item() reads a Python float, whose arithmetic
         # is cheaper than numpy scalars' (and rounds alike)

@@ -141,18 +141,24 @@ def test_bad_constructor_arguments_raise_naming_the_argument(kwargs, names):
         assert name in str(exc.value)
 
 
-def test_action_is_clipped_to_the_motor_peak_torque():
-    """A command beyond ±peak torque is applied as ±peak; the action space is that box."""
+def command_limit_nm(motor) -> float:
+    """The command that delivers the peak torque through τ = c/(1 + α|c|), solved by hand: peak/(1 - α·peak)."""
+    return motor.peak_torque_nm / (1.0 - motor.torque_saturation_per_nm * motor.peak_torque_nm)
+
+
+def test_action_is_clipped_to_the_command_that_delivers_the_peak_torque():
+    """A command beyond the driver's limit (the command that delivers the 18 N·m peak, 26.3 N·m) is applied as
+    the limit; the action space is that box."""
     env = make()
-    peak = TestbedParams().motor.peak_torque_nm
-    assert env.action_space.low[0] == -peak and env.action_space.high[0] == peak
+    limit = command_limit_nm(TestbedParams().motor)
+    assert -env.action_space.low[0] == env.action_space.high[0] == pytest.approx(limit, rel=1e-6)  # float32
     env.reset(seed=0)
-    assert env.step(np.array([1e3], np.float32))[4]["command_nm"] == peak
-    assert env.plant.torque_command_nm == peak
+    assert env.step(np.array([1e3], np.float32))[4]["command_nm"] == pytest.approx(limit, rel=1e-12)
+    assert env.plant.torque_command_nm == pytest.approx(limit, rel=1e-12)
 
 
 def test_reward_is_the_normalised_squared_load_cell_error_plus_control_cost():
-    """Without noise, reward = -((τ_loadcell - τ_ref)/s)² - w (u/τ_peak)² with τ_loadcell read from the plant."""
+    """Without noise, reward = -((τ_loadcell - τ_ref)/s)² - w (u/u_max)² with τ_loadcell read from the plant."""
     w = 0.5
     env = make(feedback_noise=False, ctrl_cost_weight=w)
     env.reset(seed=0, options={"task": "sine", "amplitude_nm": 0.5, "frequency_hz": 5.0})
@@ -162,7 +168,7 @@ def test_reward_is_the_normalised_squared_load_cell_error_plus_control_cost():
         error = env.plant.loadcell_torque_nm - ref
         scale = np.abs(env.reference.values_nm).max()  # the episode's largest |reference|
         assert env.reference.scale_nm == scale
-        expected = -(error / scale) ** 2 - w * (float(np.float32(u)) / 18.0) ** 2
+        expected = -(error / scale) ** 2 - w * (float(np.float32(u)) / command_limit_nm(TestbedParams().motor)) ** 2
         assert reward == pytest.approx(expected, rel=1e-12, abs=1e-15)
 
 

@@ -5,26 +5,38 @@ from hypothesis import given
 from hypothesis import strategies as st
 
 from sim.motor_torque import CurrentToTorqueMap
-from sim.params import TestbedParams
+from sim.params import ParameterError, TestbedParams
 
-BETA_PER_NM = TestbedParams().motor.torque_saturation_per_nm  # the default, 0.015 /(N·m)
-
-
-@given(command_nm=st.floats(-1.0 / (2.0 * BETA_PER_NM), 1.0 / (2.0 * BETA_PER_NM)))
-def test_the_inverse_map_recovers_the_command_on_the_monotonic_branch(command_nm):
-    motor = CurrentToTorqueMap(BETA_PER_NM)
-    # 1 µN·m: at the branch point (command 1/(2β)) the inverse's square root loses half the digits,
-    # sqrt(2e-16)/(2β) ≈ 0.5 µN·m
-    assert motor.command_nm(motor.delivered_nm(command_nm)) == pytest.approx(command_nm, abs=1e-6)
+MOTOR = TestbedParams().motor  # the default: α = 0.0176 /(N·m), 18 N·m peak
 
 
-def test_beyond_the_maps_maximum_the_inverse_is_the_command_that_reaches_it():
-    motor = CurrentToTorqueMap(BETA_PER_NM)
-    peak_delivered_nm = 1.0 / (4.0 * BETA_PER_NM)  # 16.7 N·m at a command of 1/(2β) = 33.3 N·m
-    assert motor.delivered_nm(1.0 / (2.0 * BETA_PER_NM)) == pytest.approx(peak_delivered_nm)
-    assert motor.command_nm(-1.01 * peak_delivered_nm) == pytest.approx(-1.0 / (2.0 * BETA_PER_NM))
+@given(command_nm=st.floats(-1e3, 1e3))
+def test_the_inverse_map_recovers_the_command(command_nm):
+    motor = CurrentToTorqueMap.from_params(TestbedParams())
+    assert motor.command_nm(motor.delivered_nm(command_nm)) == pytest.approx(command_nm, rel=1e-12, abs=1e-12)
+
+
+def test_the_driver_limit_is_the_command_that_delivers_the_papers_peak_torque():
+    """Closed form: c/(1 + α c) = 18 N·m at c = 18/(1 - 18 α) = 26.3 N·m; the droop there is 32 %, 15 % at 10 N·m."""
+    motor = CurrentToTorqueMap.from_params(TestbedParams())
+    alpha, peak = MOTOR.torque_saturation_per_nm, MOTOR.peak_torque_nm
+    assert motor.command_limit_nm == pytest.approx(peak / (1.0 - alpha * peak), rel=1e-12)
+    assert motor.delivered_nm(-motor.command_limit_nm) == pytest.approx(-peak, rel=1e-12)
+    assert motor.delivered_nm(10.0) == pytest.approx(8.5, abs=0.01)  # 15 % droop at a 10 N·m command
+
+
+def test_a_torque_beyond_the_maps_asymptote_is_refused_with_the_asymptote():
+    motor = CurrentToTorqueMap(0.02, 18.0)
+    with pytest.raises(ValueError, match="at most 1/motor.torque_saturation_per_nm = 50 N·m"):
+        motor.command_nm(-50.0)
+
+
+def test_a_saturation_that_cannot_deliver_the_peak_torque_is_refused():
+    with pytest.raises(ParameterError, match=r"motor.torque_saturation_per_nm = 0.025 .*valid range \[0, 0.02\)"):
+        TestbedParams().replace(motor={"torque_saturation_per_nm": 0.025, "peak_torque_nm": 50.0})
 
 
 def test_a_linear_motor_delivers_its_command():
-    motor = CurrentToTorqueMap(0.0)
+    motor = CurrentToTorqueMap(0.0, 18.0)
     assert motor.delivered_nm(-7.5) == motor.command_nm(-7.5) == -7.5
+    assert motor.command_limit_nm == 18.0

@@ -16,6 +16,8 @@ P = TestbedParams()
 P_LINEAR_MOTOR = P.replace(motor={"torque_saturation_per_nm": 0.0})  # delivers what it is commanded
 D = derive(P)
 TICK_S = P.simulation.control_period_s
+# the command that delivers the 18 N·m peak through τ = c/(1 + α|c|): the driver's current limit, 26.3 N·m
+DRIVER_LIMIT_NM = P.motor.peak_torque_nm / (1.0 - P.motor.torque_saturation_per_nm * P.motor.peak_torque_nm)
 
 
 def hold(plant: Plant, tau_cmd: float, seconds: float, tau_ext: float = 0.0) -> None:
@@ -115,7 +117,8 @@ def test_gear_holds_below_breakaway(fraction):
 
 
 def test_acceleration_above_breakaway_is_net_torque_over_inertia():
-    """Sliding in the free fixture: dω/dt = (τ - τ_friction)/J within 5 %, friction from the parameters."""
+    """Sliding in the free fixture: dω/dt = (τ - τ_friction)/J within 5 %, friction from the parameters, τ what the
+    motor delivers for the command, c/(1 + α|c|)."""
     plant = Plant(P, "free")
     tau = 1.0
     hold(plant, tau, 0.3)
@@ -130,7 +133,8 @@ def test_acceleration_above_breakaway_is_net_torque_over_inertia():
     friction = (fr.coulomb_torque_nm + fr.load_friction_coefficient * abs(np.mean(twist_torques))
                 + fr.viscous_nms_per_rad * np.mean(velocities))
     inertia = D.reflected_rotor_inertia_kgm2 + D.output_inertia_kgm2 + D.lever_side_inertia_kgm2
-    assert measured == pytest.approx((tau - friction) / inertia, rel=0.05)
+    delivered = tau / (1.0 + P.motor.torque_saturation_per_nm * tau)
+    assert measured == pytest.approx((delivered - friction) / inertia, rel=0.05)
 
 
 def test_slow_reversal_shows_the_backlash_width_within_10_percent():
@@ -184,12 +188,12 @@ def test_command_delay_postpones_the_current_response():
 
 @pytest.mark.parametrize("command_nm", [-12.0, 10.0, 30.0])
 def test_motor_delivers_the_current_to_torque_map_of_the_limited_command(command_nm):
-    """Held on the locked lever, the flexure carries τ(1 - β|τ|) of the command τ limited to ±18 N·m (closed form),
-    less or more the friction the gear can hold; the driver's estimate reports the limited command itself."""
+    """Held on the locked lever, the flexure carries τ/(1 + α|τ|) of the command τ limited to the driver's ±26.3 N·m
+    (closed form), less or more the friction the gear can hold; the driver's estimate reports the limited command."""
     plant = Plant(P, "locked")
     hold(plant, command_nm, 0.5)
-    limited = min(max(command_nm, -P.motor.peak_torque_nm), P.motor.peak_torque_nm)
-    delivered = limited * (1.0 - P.motor.torque_saturation_per_nm * abs(limited))
+    limited = min(max(command_nm, -DRIVER_LIMIT_NM), DRIVER_LIMIT_NM)
+    delivered = limited / (1.0 + P.motor.torque_saturation_per_nm * abs(limited))
     fr = P.friction
     holdable = fr.breakaway_torque_nm + fr.load_friction_coefficient * abs(delivered)
     assert abs(plant.flexure_torque_nm - delivered) <= holdable
@@ -197,12 +201,15 @@ def test_motor_delivers_the_current_to_torque_map_of_the_limited_command(command
     assert plant.current_torque_estimate_nm == pytest.approx(limited, rel=1e-9)
 
 
-def test_motor_torque_saturates_at_the_paper_peak():
-    """A 30 N·m command gives the 18 N·m peak motor torque (paper Sec. II); the load cell sees it less or more
-    the friction the gear can hold at that load."""
-    plant = Plant(P_LINEAR_MOTOR, "locked")
-    hold(plant, 30.0, 0.5)
-    assert plant.current_torque_estimate_nm == pytest.approx(P.motor.peak_torque_nm, rel=1e-9)
+@pytest.mark.parametrize("params", [P, P_LINEAR_MOTOR], ids=["saturating", "linear"])
+def test_motor_torque_saturates_at_the_paper_peak(params):
+    """A 40 N·m command gives the 18 N·m peak motor torque (paper Sec. II) at the driver's current limit, which the
+    driver's estimate reports; the load cell sees the peak less or more the friction the gear can hold."""
+    plant = Plant(params, "locked")
+    hold(plant, 40.0, 0.5)
+    alpha = params.motor.torque_saturation_per_nm
+    limit_nm = P.motor.peak_torque_nm / (1.0 - alpha * P.motor.peak_torque_nm)  # 26.3 N·m, or 18 N·m if linear
+    assert plant.current_torque_estimate_nm == pytest.approx(limit_nm, rel=1e-9)
     fr = P.friction
     holdable = fr.breakaway_torque_nm + fr.load_friction_coefficient * P.motor.peak_torque_nm
     assert abs(plant.loadcell_force_n * P.lever.length_m - P.motor.peak_torque_nm) <= holdable
@@ -210,7 +217,7 @@ def test_motor_torque_saturates_at_the_paper_peak():
 
 def test_copper_loss_is_that_of_the_current_the_driver_commands():
     """Held at 10 N·m for 2 s, the winding warms as the thermal network does with R·i², i = τ_cmd/(N·K_t): the
-    current the driver commands, 1/(1 - 10β)² = 1.38x the loss of the torque-producing current."""
+    current the driver commands, (1 + 10α)² = 1.38x the loss of the torque-producing current."""
     plant = Plant(P, "locked")
     ambient = plant.thermal.temperatures_c.copy()
     hold(plant, 10.0, 2.0)

@@ -82,7 +82,7 @@ def baseline_theta(rig: Rig) -> dict[str, float]:
             coulomb=fr.coulomb_torque_nm, breakaway=fr.breakaway_torque_nm,
             stribeck_velocity=fr.stribeck_velocity_rad_s, viscous=fr.viscous_nms_per_rad,
             presliding_stiffness=fr.presliding_stiffness_nm_per_rad, load_coefficient=fr.load_friction_coefficient,
-            backlash_width=p.backlash.width_rad, peak_effort=p.motor.peak_torque_nm,
+            backlash_width=p.backlash.width_rad, peak_effort=CurrentToTorqueMap.from_params(p).command_limit_nm,
             cogging_period=2.0 * math.pi / p.motor.gear_ratio)
     else:
         theta.update(rig.rigid)
@@ -223,7 +223,7 @@ class Surrogate:
         """Effort reaching the joint from the command, filtered [N·m | N]."""
         d = self.data
         lag = self.const.get("current_lag", 0.0)
-        beta = self.const.get("torque_saturation", 0.0)
+        saturation = self.const.get("torque_saturation", 0.0)
         key = (theta["delay"], theta["torque_rolloff"], theta["effort_gain"], theta["peak_effort"])
 
         def compute() -> np.ndarray:
@@ -231,8 +231,8 @@ class Surrogate:
             u = np.clip(d.u, -peak, peak)
             if theta["torque_rolloff"] and math.isfinite(peak):
                 u = u * (1.0 - theta["torque_rolloff"] * (u / peak) ** 2)
-            if beta:  # the testbed motor's own current-to-torque map, after any roll-off
-                u = CurrentToTorqueMap(beta).delivered_nm(u)
+            if saturation:  # the testbed motor's own current-to-torque map, after any roll-off (its clip is above)
+                u = CurrentToTorqueMap(saturation, math.inf).delivered_nm(u)
             # command k is held during (t_k - dt, t_k]: place it at the hold's centre, then delay and lag it
             shifted = np.interp(d.t - (theta["delay"] + lag), d.t - 0.5 * d.dt, u)
             return d.filt(theta["effort_gain"] * shifted)

@@ -31,6 +31,7 @@ import mujoco
 import numpy as np
 
 from sim.discrepancy.rig import Rig
+from sim.motor_torque import CurrentToTorqueMap
 from sim.plant import SIGNAL_UNITS, Plant
 
 RIGID_SUBSTEPS = 5  # rigid joint: physics steps per control tick (no stiff mode; the dry-friction row's time
@@ -60,7 +61,10 @@ def _effect(rig: Rig, name: str) -> dict[str, float] | None:
 def command_map(rig: Rig) -> Callable[[float], float]:
     """Effort command -> what the drive is asked for before its dynamics (the roll-off effect)."""
     rolloff = _effect(rig, "torque_constant_nonlinearity")
-    peak = rig.params.motor.peak_torque_nm if rig.model == "testbed" else rig.rigid.get("peak_effort", math.inf)
+    if rig.model == "testbed":  # the driver's current limit, as the plant applies it
+        peak = CurrentToTorqueMap.from_params(rig.params).command_limit_nm
+    else:
+        peak = rig.rigid.get("peak_effort", math.inf)
     c = rolloff["torque_rolloff"] if rolloff else 0.0
     if c and not math.isfinite(peak):
         raise ValueError("torque_constant_nonlinearity needs the rig's peak effort (peak_effort)")

@@ -36,6 +36,7 @@ from sim.discrepancy.rig import AddedEffect, Rig, rig_from_dict
 from sim.discrepancy.signals import quantise
 from sim.discrepancy.simulate import run_rigid, run_testbed, sensor_reading
 from sim.logio import SlideRunLog
+from sim.motor_torque import CurrentToTorqueMap
 from sim.params import TestbedParams, field_range
 from sim.runlog import RunLog
 
@@ -104,7 +105,7 @@ BASELINE_RANGES: dict[tuple[str, str], tuple[float, float]] = {
 # defaults since 2026-11-23, kept explicit so its tests still hold it if the defaults move again
 GRID_BEST_OVERRIDES: dict[str, dict[str, float]] = {
     "friction": {"coulomb_torque_nm": 0.09, "load_friction_coefficient": 0.05},
-    "motor": {"torque_saturation_per_nm": 0.015}, "backlash": {"width_rad": 0.5e-3}}
+    "motor": {"torque_saturation_per_nm": 0.0176}, "backlash": {"width_rad": 0.5e-3}}
 
 
 def random_baseline_overrides(seed: int) -> dict[str, dict[str, float]]:
@@ -292,7 +293,7 @@ def synth_log(experiment: str, truth: Rig, duration_s: float, seed: int, *,
             u = FREE_KP_NM_PER_RAD * (ref - s["q"]) - FREE_KD_NMS_PER_RAD * s["qd"]
             return min(max(u, -FREE_COMMAND_LIMIT_NM), FREE_COMMAND_LIMIT_NM)
     else:
-        pi = PITorqueController(output_limit_nm=truth.params.motor.peak_torque_nm)
+        pi = PITorqueController(output_limit_nm=CurrentToTorqueMap.from_params(truth.params).command_limit_nm)
         feedback = "tau_sensor" if experiment == "locked_pi_sensor" else "tau_current_estimate"
         sensor_rig = truth
 

@@ -17,6 +17,7 @@ from experiments.common import (add_params_arg, add_rerun_args, load_params_arg,
                                 write_outputs)
 from models.gim8108_testbed.derived import FIXTURES, derive, lumped_modes_hz, physics_timestep
 from sim.characterize import linearizable_plant, linearized_modes, measure_backlash, measure_breakaway
+from sim.motor_torque import CurrentToTorqueMap
 from sim.params import TestbedParams
 from sim.runlog import RunLog
 
@@ -77,6 +78,8 @@ def run_plant_card(params: TestbedParams | None = None, *, keep_logs: bool = Fal
     put("flexure_twist_per_torque", 1.0 / d.flexure_stiffness_nm_per_rad, "rad/(N·m)")
     put("sensing_surface_displacement_at_25nm",
         25.0 / d.flexure_stiffness_nm_per_rad * p.flexure.sensing_radius_m, "m")
+    # the driver's current limit as a command: what delivers motor.peak_torque_nm through the torque droop
+    put("driver_command_limit", CurrentToTorqueMap.from_params(p).command_limit_nm, "N·m")
     modes: dict[str, list[dict[str, float]]] = {}
     for fixture in FIXTURES:
         h, n = physics_timestep(p, fixture)

@@ -27,6 +27,10 @@ def test_plant_card_prints_the_tables_and_writes_the_json(tmp_path):
                       ("backlash_width_measured", "rad")]:
         assert card["derived"][key]["unit"] == unit
         assert card["derived"][key]["value"] > 0
+    motor = {k.split(".", 1)[1]: v["value"] for k, v in card["parameters"].items() if k.startswith("motor.")}
+    # the command that delivers the peak through τ = c/(1 + α|c|), solved by hand: 18/(1 - 18α) = 26.3 N·m
+    limit = motor["peak_torque_nm"] / (1.0 - motor["torque_saturation_per_nm"] * motor["peak_torque_nm"])
+    assert card["derived"]["driver_command_limit"] == {"value": pytest.approx(limit, rel=1e-12), "unit": "N·m"}
 
 
 def test_plant_card_rejects_a_bad_parameter_file_naming_the_field(tmp_path):

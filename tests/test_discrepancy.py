@@ -292,6 +292,20 @@ def test_two_hidden_effects_are_both_found():
         assert _relative_error(f.parameters[key]["value"], truth.effects[f.effect][key]) < RELATIVE_TOLERANCE
 
 
+def test_a_sensor_gain_is_not_fitted_as_a_hysteresis_loop_that_never_closes():
+    """Until the torque has moved 2S after a reversal the loop H/S·(τ - p) rises like a gain; a span of half the load
+    range or more (where an unbounded fit of a pure gain goes: 7.1-7.5 N·m of a 14.3 N·m range) is a gain with an
+    offset. The span is held to a quarter of the range, so a full swing shows the loop rise and saturate, and a
+    hidden gain is named as one, recovered within 0.5 %."""
+    log, rig, truth = hidden_effect_log("locked", ["sensor_gain"], seed=23, duration_s=DURATION_S)
+    result = analyse(log, rig)
+    assert result.found[0] == "sensor_gain"
+    assert abs(result.findings[0].parameters["sensor_gain"]["value"] - truth.effects["sensor_gain"]["sensor_gain"]) < 5e-3
+    hysteresis = next(c for c in result.baseline["candidates"][0] if c["effect"] == "sensor_hysteresis")
+    load_range_nm = np.ptp(log.columns["force_loadcell"]) * rig.params.lever.length_m
+    assert hysteresis["parameters"]["sensor_hysteresis_span"] <= 0.25 * load_range_nm * 1.05  # + the lever's inertia
+
+
 def test_log_without_temperature_change_says_thermal_drift_cannot_be_revealed():
     """Without a temperature column the analysis states that sensor thermal drift cannot be identified."""
     log, rig, _ = hidden_effect_log("locked", [], seed=1, duration_s=DURATION_S)

@@ -17,8 +17,9 @@ load_dependent_friction (load_coefficient)        dry friction μ·|transmitted 
 presliding_friction (presliding_stiffness)        LuGre bristle stiffness σ0 [N·m/rad] (elastic motion in stick)
 backlash (backlash_width)                         dead band between gear and sensor hub [rad]
 cogging (cogging_amplitude, _period, _phase)      A·sin(2π·q_motor/P + φ) [N·m], P [rad], φ [rad]
-torque_constant_nonlinearity (torque_rolloff)     delivered = u·(1 - c·(u/u_peak)²): fraction c of the
-                                                  command lost at peak effort (magnetic saturation) [1]
+torque_constant_nonlinearity (torque_rolloff)     delivered = u·(1 - c·min(|u|/u_peak, 1)²): fraction c
+                                                  of the command lost at peak effort (magnetic saturation;
+                                                  on the testbed u_peak is the rated peak torque) [1]
 transport_delay (delay)                           command-to-torque dead time [s]
 gravity (gravity_amplitude, gravity_angle)        load A·sin(q - q0) [N·m] (hinge), constant A [N] (slide)
 sensor_offset (sensor_offset)                     torque sensor zero error b [N·m]

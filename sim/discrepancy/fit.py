@@ -43,7 +43,8 @@ class FitOutcome:
 
 
 def bounds_of(key: str, theta0: dict[str, float], surrogate: Surrogate, fitting: tuple[str, ...]) -> tuple[float, float]:
-    """Valid range of theta entry ``key`` in a fit (physical range; Coulomb <= breakaway for the testbed)."""
+    """Valid range of theta entry ``key`` in a fit (physical range; Coulomb <= breakaway for the testbed; a
+    hysteresis span a full swing of the load saturates)."""
     if key == "inertia":
         return INERTIA_RANGE[0] * theta0["inertia"], INERTIA_RANGE[1] * theta0["inertia"]
     if key == "effort_gain":
@@ -58,6 +59,11 @@ def bounds_of(key: str, theta0: dict[str, float], surrogate: Surrogate, fitting:
         high = min(high, theta0["breakaway"])
     if key == "breakaway" and "coulomb" not in fitting:
         low = max(low, theta0["coulomb"])
+    if key == "sensor_hysteresis_span":
+        # Until the torque has moved 2S after a reversal, the loop H/S·(τ - p) rises like a sensor gain; with S at
+        # half the load range or more it never leaves its start (a gain and an offset, not hysteresis). A quarter
+        # of the range lets a full swing show the loop rise and then saturate.
+        high = min(high, max(low, 0.25 * float(np.ptp(surrogate.transmitted(theta0)))))
     return low, high
 
 

@@ -82,7 +82,7 @@ def baseline_theta(rig: Rig) -> dict[str, float]:
             coulomb=fr.coulomb_torque_nm, breakaway=fr.breakaway_torque_nm,
             stribeck_velocity=fr.stribeck_velocity_rad_s, viscous=fr.viscous_nms_per_rad,
             presliding_stiffness=fr.presliding_stiffness_nm_per_rad, load_coefficient=fr.load_friction_coefficient,
-            backlash_width=p.backlash.width_rad, peak_effort=CurrentToTorqueMap.from_params(p).command_limit_nm,
+            backlash_width=p.backlash.width_rad, peak_effort=p.motor.peak_torque_nm,
             cogging_period=2.0 * math.pi / p.motor.gear_ratio)
     else:
         theta.update(rig.rigid)
@@ -228,9 +228,10 @@ class Surrogate:
 
         def compute() -> np.ndarray:
             peak = theta["peak_effort"]
-            u = np.clip(d.u, -peak, peak)
-            if theta["torque_rolloff"] and math.isfinite(peak):
-                u = u * (1.0 - theta["torque_rolloff"] * (u / peak) ** 2)
+            limit = self.const.get("command_limit", peak)  # the testbed driver's; a rigid rig saturates at its peak
+            u = np.clip(d.u, -limit, limit)
+            if theta["torque_rolloff"] and math.isfinite(peak):  # lost fraction: up to c at peak effort, c beyond
+                u = u * (1.0 - theta["torque_rolloff"] * np.minimum(np.abs(u) / peak, 1.0) ** 2)
             if saturation:  # the testbed motor's own current-to-torque map, after any roll-off (its clip is above)
                 u = CurrentToTorqueMap(saturation, math.inf).delivered_nm(u)
             # command k is held during (t_k - dt, t_k]: place it at the hold's centre, then delay and lag it

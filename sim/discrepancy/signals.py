@@ -15,6 +15,7 @@ from scipy.signal import butter, sosfiltfilt
 
 from models.gim8108_testbed.derived import derive
 from sim.discrepancy.rig import Rig
+from sim.motor_torque import CurrentToTorqueMap
 from sim.runlog import RunLog
 
 FILTER_ORDER = 4  # Butterworth order of the zero-phase low-pass (8 after filtfilt's two passes)
@@ -224,6 +225,7 @@ def testbed_constants(rig: Rig) -> dict[str, float]:
     return {"lever_inertia": d.lever_side_inertia_kgm2, "flexure_stiffness": d.flexure_stiffness_nm_per_rad,
             "current_lag": p.motor.current_loop_time_constant_s,
             "torque_saturation": p.motor.torque_saturation_per_nm,
+            "command_limit": CurrentToTorqueMap.from_params(p).command_limit_nm,
             "rotor_reflected_inertia": d.reflected_rotor_inertia_kgm2,
             "presliding_damping_ratio": p.friction.presliding_damping_ratio,
             "calibration_temperature": p.photoreflector.reference_temperature_c,

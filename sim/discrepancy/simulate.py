@@ -61,18 +61,19 @@ def _effect(rig: Rig, name: str) -> dict[str, float] | None:
 def command_map(rig: Rig) -> Callable[[float], float]:
     """Effort command -> what the drive is asked for before its dynamics (the roll-off effect)."""
     rolloff = _effect(rig, "torque_constant_nonlinearity")
-    if rig.model == "testbed":  # the driver's current limit, as the plant applies it
-        peak = CurrentToTorqueMap.from_params(rig.params).command_limit_nm
+    if rig.model == "testbed":  # the roll-off refers to the rated peak torque; the driver limits the command
+        peak = rig.params.motor.peak_torque_nm
+        limit = CurrentToTorqueMap.from_params(rig.params).command_limit_nm
     else:
-        peak = rig.rigid.get("peak_effort", math.inf)
+        peak = limit = rig.rigid.get("peak_effort", math.inf)
     c = rolloff["torque_rolloff"] if rolloff else 0.0
     if c and not math.isfinite(peak):
         raise ValueError("torque_constant_nonlinearity needs the rig's peak effort (peak_effort)")
 
     def mapped(u: float) -> float:
-        if c:
-            u = min(max(u, -peak), peak)
-            u = u * (1.0 - c * (u / peak) ** 2)
+        if c:  # as TestbedSurrogate.delivered: the lost fraction grows to c at peak effort and stays there
+            u = min(max(u, -limit), limit)
+            u = u * (1.0 - c * min(abs(u) / peak, 1.0) ** 2)
         return u
 
     return mapped

@@ -148,8 +148,8 @@ def recording_overhead(duration_s: float, repeats: int) -> dict[str, float]:
         for i in range(repeats):
             plant = Plant(p, "locked")
             start = time.perf_counter()
-            log = run_torque_loop(plant, PITorqueController(CurrentToTorqueMap.from_params(p).command_limit_nm), make_feedback("sensor", p, 0),
-                                  reference, meta={})
+            controller = PITorqueController(CurrentToTorqueMap.from_params(p).command_limit_nm)
+            log = run_torque_loop(plant, controller, make_feedback("sensor", p, 0), reference, meta={})
             runs.append(time.perf_counter() - start)
             start = time.perf_counter()
             record_logs({"sine": log}, p, path=Path(tmp) / f"r{i}.rrd")

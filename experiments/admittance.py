@@ -153,7 +153,8 @@ def run_push(params: TestbedParams, push_s: float, name: str, seed: int = 0, dur
         hand = ScriptedHand(min(push_s, duration_s), period_s=dt, before_s=min(REST_BEFORE_S, duration_s / 4),
                             after_s=min(REST_AFTER_S, duration_s / 4))
     plant = Plant(params, "free")
-    controller = AdmittanceController(period_s=dt, output_limit_nm=CurrentToTorqueMap.from_params(params).command_limit_nm)
+    limit_nm = CurrentToTorqueMap.from_params(params).command_limit_nm  # the driver's current limit
+    controller = AdmittanceController(period_s=dt, output_limit_nm=limit_nm)
     log = run_admittance_loop(plant, controller, make_feedback("sensor", params, seed), hand,
                               progress_label=f"{name} push" if progress else None,
                               meta={"push_s": hand.push_s, "seed": seed})

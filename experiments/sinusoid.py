@@ -134,7 +134,8 @@ def run_sinusoid_case(params: TestbedParams, feedback: str, waveform: Waveform, 
     n_warmup = round(min(WARMUP_PERIODS / waveform.frequency_hz, duration_s) / dt)  # short mode: short warm-up
     t = np.arange(1, n_warmup + round(duration_s / dt) + 1) * dt
     reference = waveform.reference(t - dt)  # the reference of tick k is applied from the start of tick k
-    controller = PITorqueController(output_limit_nm=CurrentToTorqueMap.from_params(params).command_limit_nm, period_s=dt)
+    limit_nm = CurrentToTorqueMap.from_params(params).command_limit_nm  # the driver's current limit
+    controller = PITorqueController(output_limit_nm=limit_nm, period_s=dt)
     log = run_torque_loop(plant, controller, make_feedback(feedback, params, seed), reference,
                           progress_label=f"{waveform.name}, {feedback}" if progress else None,
                           meta={"waveform": waveform.name, "seed": seed, "warmup_ticks": n_warmup})

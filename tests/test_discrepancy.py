@@ -300,7 +300,8 @@ def test_a_sensor_gain_is_not_fitted_as_a_hysteresis_loop_that_never_closes():
     log, rig, truth = hidden_effect_log("locked", ["sensor_gain"], seed=23, duration_s=DURATION_S)
     result = analyse(log, rig)
     assert result.found[0] == "sensor_gain"
-    assert abs(result.findings[0].parameters["sensor_gain"]["value"] - truth.effects["sensor_gain"]["sensor_gain"]) < 5e-3
+    found = result.findings[0].parameters["sensor_gain"]["value"]
+    assert abs(found - truth.effects["sensor_gain"]["sensor_gain"]) < 5e-3
     hysteresis = next(c for c in result.baseline["candidates"][0] if c["effect"] == "sensor_hysteresis")
     load_range_nm = np.ptp(log.columns["force_loadcell"]) * rig.params.lever.length_m
     assert hysteresis["parameters"]["sensor_hysteresis_span"] <= 0.25 * load_range_nm * 1.05  # + the lever's inertia

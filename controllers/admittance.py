@@ -38,6 +38,8 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 from controllers.pi import PAPER_CONTROL_PERIOD_S, check_range
+from sim.motor_torque import CurrentToTorqueMap
+from sim.params import TestbedParams
 
 # Paper Sec. V-C: desired inertia, damping and stiffness of the virtual dynamics.
 PAPER_DESIRED_INERTIA_KGM2 = 0.03
@@ -46,6 +48,8 @@ PAPER_DESIRED_STIFFNESS_NM_PER_RAD = 0.0
 # Chosen (see module docstring): inner PD on the motor's output-referred angle and velocity.
 DEFAULT_ANGLE_GAIN_NM_PER_RAD = 30.0
 DEFAULT_VELOCITY_GAIN_NMS_PER_RAD = 0.9
+# The default motor's driver limit [N·m]: the command that delivers its 18 N·m peak torque (sim.motor_torque).
+DEFAULT_OUTPUT_LIMIT_NM = CurrentToTorqueMap.from_params(TestbedParams()).command_limit_nm
 
 
 @dataclass
@@ -67,7 +71,8 @@ class AdmittanceController:
     period_s : float
         T_s [s].
     output_limit_nm : float
-        Largest command magnitude [N·m] (the motor's peak torque).
+        Largest command magnitude [N·m]; default the default motor's driver limit, 26.3 N·m
+        (``CurrentToTorqueMap.command_limit_nm``: the command that delivers the 18 N·m peak torque).
     rest_angle_rad : float
         θ_0, the virtual spring's rest angle and the initial reference [rad].
 
@@ -83,7 +88,7 @@ class AdmittanceController:
     angle_gain_nm_per_rad: float = DEFAULT_ANGLE_GAIN_NM_PER_RAD
     velocity_gain_nms_per_rad: float = DEFAULT_VELOCITY_GAIN_NMS_PER_RAD
     period_s: float = PAPER_CONTROL_PERIOD_S
-    output_limit_nm: float = 18.0
+    output_limit_nm: float = DEFAULT_OUTPUT_LIMIT_NM
     rest_angle_rad: float = 0.0
 
     def __post_init__(self) -> None:

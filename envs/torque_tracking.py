@@ -48,7 +48,8 @@ class TorqueTrackingEnv(gym.Env):
     |-----|--------|-----|-----|------|
     | 0 | motor torque command, output side | -limit | limit | N·m |
 
-    Actions outside the box are clipped to it (the driver's limit).
+    Actions outside the box are clipped to it (the driver's limit; with domain randomisation, to the episode's
+    motor's own limit where that is lower).
 
     ## Observation Space
     ``Box(-inf, inf, (6,), float64)``: what the controller of the real rig can read at the start of a tick.
@@ -137,8 +138,8 @@ class TorqueTrackingEnv(gym.Env):
         self.feedback_noise, self.domain_randomization = bool(feedback_noise), bool(domain_randomization)
         self.randomization_scale, self.ctrl_cost_weight = float(randomization_scale), float(ctrl_cost_weight)
         self.render_mode = None
-        limit = CurrentToTorqueMap.from_params(self.nominal_params).command_limit_nm
-        self.action_space = spaces.Box(-limit, limit, (1,), np.float32)
+        self._box_limit_nm = CurrentToTorqueMap.from_params(self.nominal_params).command_limit_nm
+        self.action_space = spaces.Box(-self._box_limit_nm, self._box_limit_nm, (1,), np.float32)
         self.observation_space = spaces.Box(-np.inf, np.inf, (len(OBSERVATION_NAMES),), np.float64)
         # The nominal unit's factory calibration (cached per process; ~5 s the first time).
         self._calibration = factory_calibration(self.nominal_params)
@@ -166,7 +167,8 @@ class TorqueTrackingEnv(gym.Env):
         self._sensor = make_feedback("sensor", sensor_params, int(rng.integers(2**31)), self._calibration)
         self._current = make_feedback("current", self.params)
         self._loadcell_noise = self._draw_loadcell_noise(np.random.default_rng(int(rng.integers(2**63))))
-        self._command_limit = CurrentToTorqueMap.from_params(self.params).command_limit_nm
+        # what the driver applies: the box, or less if this episode's (randomised) motor reaches its peak sooner
+        self._command_limit = min(self._box_limit_nm, CurrentToTorqueMap.from_params(self.params).command_limit_nm)
         self._scale = self.reference.scale_nm
         self._reference_nm = self.reference.values_nm.tolist()  # Python floats: cheaper to index per step
         self.plant.reset(backlash_side=self.reference.first_sign)
@@ -193,7 +195,7 @@ class TorqueTrackingEnv(gym.Env):
             output = plant.flexure_torque_nm
         self._k += 1
         error = output - ref
-        u = command / self._command_limit
+        u = command / self._box_limit_nm
         reward = -(error / self._scale) ** 2 - self.ctrl_cost_weight * u * u
         truncated = self._k >= self.n_steps
         self._observe()

@@ -57,7 +57,9 @@ class CurrentToTorqueMap:
         return command_nm / (1.0 + self.saturation_per_nm * abs(command_nm))
 
     def command_nm(self, delivered_nm: float) -> float:
-        """The command that delivers ``delivered_nm`` [N·m], |delivered_nm| below the asymptote 1/α."""
+        """The command that delivers ``delivered_nm`` [N·m] (a float), |delivered_nm| below the asymptote 1/α."""
+        if self.saturation_per_nm == 0.0:  # a linear motor (also with an unbounded peak: no 0·inf)
+            return delivered_nm
         shortfall = 1.0 - self.saturation_per_nm * abs(delivered_nm)
         if shortfall <= 0.0:
             raise ValueError(f"delivered torque {delivered_nm} N·m: the motor's map reaches at most "

@@ -117,8 +117,9 @@ class BacklashParams:
     width_rad: float = quantity(
         5.0e-4, "rad", "tuned: 0.03° total dead band, a tight planetary stage; the paper reports backlash but "
         "no value (Sec. V). experiments/identify_defaults.py (grid 0.5/1.0 mrad, a first pass also 3.5 mrad = "
-        "0.2°) prefers it with load_friction_coefficient 0.05 and torque_saturation_per_nm 0.015: Tables "
-        "VI-VII RMS |ln ratio| 0.43 against 0.89 at 3.5 mrad; the impacts of crossing a wide dead band under "
+        "0.2°) prefers it with load_friction_coefficient 0.05 and torque_saturation_per_nm 0.0176: Tables "
+        "VI-VII RMS |ln ratio| 0.438 against 0.69 at 1.0 mrad (2026-11-25; with the earlier quadratic droop "
+        "0.43 against 0.89 at 3.5 mrad); the impacts of crossing a wide dead band under "
         "sensor feedback make peak errors of 0.5 N·m where the paper has 0.03-0.08 N·m", 0.0, 0.2,
         low_open=True)
     stop_time_constant_s: float = quantity(
@@ -377,7 +378,7 @@ def _validate_cross(p: TestbedParams) -> None:
         raise ParameterError(
             f"motor.torque_saturation_per_nm = {m.torque_saturation_per_nm} 1/(N·m): the current-to-torque map "
             f"flattens towards 1/α below motor.peak_torque_nm = {m.peak_torque_nm} N·m, so no current delivers the "
-            f"peak (valid range [0, {1.0 / m.peak_torque_nm:.4g}) 1/(N·m))")
+            f"peak (valid range [0, {1.0 / m.peak_torque_nm:.4g}) 1/(N·m) with this peak)")
     if p.flexure.inner_radius_m + p.flexure.beam_length_m >= p.flexure.outer_radius_m:
         raise ParameterError(
             f"flexure.beam_length_m = {p.flexure.beam_length_m} m: r_i + l must stay inside "

@@ -157,6 +157,19 @@ def test_action_is_clipped_to_the_command_that_delivers_the_peak_torque():
     assert env.plant.torque_command_nm == pytest.approx(limit, rel=1e-12)
 
 
+def test_randomised_motors_never_take_more_than_the_box_nor_more_than_their_own_driver_limit():
+    """With the torque droop randomised, a command far beyond the box is applied as the box limit or as the episode's
+    motor's own limit (the command that delivers its 18 N·m peak), whichever is lower."""
+    env = make(domain_randomization=True, randomization_scale=0.5)
+    box = float(env.action_space.high[0])
+    applied = []
+    for seed in range(6):
+        env.reset(seed=seed)
+        applied.append(env.step(np.array([1e3], np.float32))[4]["command_nm"])
+        assert applied[-1] == pytest.approx(min(box, command_limit_nm(env.params.motor)), rel=1e-6)
+    assert min(applied) < 0.99 * box  # some episodes' motors reach their peak below the box
+
+
 def test_reward_is_the_normalised_squared_load_cell_error_plus_control_cost():
     """Without noise, reward = -((τ_loadcell - τ_ref)/s)² - w (u/u_max)² with τ_loadcell read from the plant."""
     w = 0.5
@@ -184,7 +197,7 @@ def test_one_step_is_one_tick_of_the_experiments_torque_loop():
     """A PI on the env's sensor observation reproduces run_torque_loop's load-cell torque exactly (noise off)."""
     env = make(feedback_noise=False, episode_duration_s=0.3)
     obs, _ = env.reset(seed=0, options={"task": "step", "amplitude_nm": 0.1})
-    pi = PITorqueController(output_limit_nm=18.0)
+    pi = PITorqueController(output_limit_nm=command_limit_nm(TestbedParams().motor))
     loadcell = []
     for _ in range(env.n_steps):
         obs, _, _, _, info = env.step(np.array([pi.step(obs[0], obs[1])]))
@@ -194,8 +207,8 @@ def test_one_step_is_one_tick_of_the_experiments_torque_loop():
     plant.reset(backlash_side=1)
     feedback = make_feedback("sensor", p.replace(photoreflector={"noise_min_v": 0.0, "noise_max_v": 0.0}), 0,
                              factory_calibration(p))
-    log = run_torque_loop(plant, PITorqueController(output_limit_nm=18.0), feedback, env.reference.values_nm,
-                          meta={})
+    log = run_torque_loop(plant, PITorqueController(output_limit_nm=command_limit_nm(p.motor)), feedback,
+                          env.reference.values_nm, meta={})
     # same trajectory; only the last bit of force x length vs the torque differs
     np.testing.assert_allclose(np.array(loadcell), log["force_loadcell"] * p.lever.length_m, rtol=1e-12, atol=1e-15)
     assert np.abs(log["force_loadcell"]).max() * p.lever.length_m > 0.05  # the step was followed

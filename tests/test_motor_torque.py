@@ -1,5 +1,7 @@
 """The motor's current-to-torque map (sim.motor_torque): the driver's estimate inverts what the motor delivers."""
 
+import math
+
 import pytest
 from hypothesis import given
 from hypothesis import strategies as st
@@ -40,3 +42,4 @@ def test_a_linear_motor_delivers_its_command():
     motor = CurrentToTorqueMap(0.0, 18.0)
     assert motor.delivered_nm(-7.5) == motor.command_nm(-7.5) == -7.5
     assert motor.command_limit_nm == 18.0
+    assert CurrentToTorqueMap(0.0, math.inf).command_limit_nm == math.inf  # no 0·inf

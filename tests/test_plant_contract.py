@@ -8,6 +8,7 @@ import pytest
 
 from models.gim8108_testbed.build import build_xml, reference_xml_path
 from models.gim8108_testbed.derived import FIXTURES, derive, physics_timestep
+from sim.motor_torque import CurrentToTorqueMap
 from sim.params import TestbedParams
 from sim.plant import SIGNAL_UNITS, Plant, SimulationDiverged
 from sim.run import run_open_loop
@@ -20,11 +21,11 @@ P = TestbedParams()
 @pytest.mark.parametrize("fixture", FIXTURES)
 @pytest.mark.parametrize("seed", [0, 1])
 def test_every_fixture_steps_under_random_commands_without_warning(fixture, seed):
-    """Random motor and external torques up to the motor's peak raise no MuJoCo warning."""
+    """Random motor commands up to 1.2x the driver's limit and external torques raise no MuJoCo warning."""
     rng = np.random.default_rng(seed)
     plant = Plant(P, fixture)
     n = 1500
-    tau = rng.uniform(-1.2, 1.2, n) * P.motor.peak_torque_nm
+    tau = rng.uniform(-1.2, 1.2, n) * CurrentToTorqueMap.from_params(P).command_limit_nm
     ext = rng.uniform(-1, 1, n) * (5.0 if fixture == "free" else 20.0)
     run_open_loop(plant, np.repeat(tau[::50], 50), np.repeat(ext[::50], 50), progress=False)
     assert all(w.number == 0 for w in plant.data.warning)
@@ -144,7 +145,8 @@ def test_idle_board_sits_above_ambient_by_mcu_heating():
 
 
 def test_copper_losses_warm_the_board_during_a_run():
-    """Holding 18 N·m for 5 s heats the winding and the board a little (multi-rate update)."""
+    """Holding an 18 N·m command (13.7 N·m delivered) for 5 s heats the winding and the board a little
+    (multi-rate update)."""
     plant = Plant(P, "locked")
     before = plant.board_temperature_c
     for _ in range(5000):

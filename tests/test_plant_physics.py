@@ -143,9 +143,10 @@ def test_slow_reversal_shows_the_backlash_width_within_10_percent():
 
 
 def test_backlash_stop_penetrates_less_than_10_percent_of_the_gap_at_full_torque():
-    """At 18 N·m the stop's soft constraint lets the hub into the stop by < 10 % of the gap."""
+    """At the driver's limit (18 N·m delivered) the stop's soft constraint lets the hub into the stop by < 10 % of
+    the gap."""
     plant = Plant(P, "locked")
-    hold(plant, P.motor.peak_torque_nm, 0.5)
+    hold(plant, DRIVER_LIMIT_NM, 0.5)
     penetration = abs(plant.backlash_angle_rad) - 0.5 * P.backlash.width_rad
     assert 0.0 <= penetration < 0.1 * P.backlash.width_rad
 

@@ -34,6 +34,8 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
+import numpy as np
+
 TESTBED_ONLY = "testbed"
 ANY_RIG = "any"
 
@@ -167,3 +169,14 @@ def canonical(theta: dict[str, float], joint: str) -> dict[str, float]:
         theta["gravity_amplitude"] = -theta["gravity_amplitude"]
         theta["gravity_angle"] = (theta["gravity_angle"] + 2.0 * math.pi) % (2.0 * math.pi) - math.pi
     return theta
+
+
+def rolled_off(u, rolloff: float, peak: float, limit: float):
+    """The effort command after the drive's clip at ±``limit`` and the ``torque_constant_nonlinearity`` roll-off:
+    u·(1 - c·min(|u|/peak, 1)²), the lost fraction growing to c at peak effort and staying there [N·m | N].
+    Floats and arrays alike; the one definition the simulator (``simulate.command_map``) and the surrogate
+    (``Surrogate.delivered``) share."""
+    u = np.clip(u, -limit, limit)
+    if rolloff and math.isfinite(peak):
+        u = u * (1.0 - rolloff * np.minimum(np.abs(u) / peak, 1.0) ** 2)
+    return u

@@ -43,8 +43,8 @@ class FitOutcome:
 
 
 def bounds_of(key: str, theta0: dict[str, float], surrogate: Surrogate, fitting: tuple[str, ...]) -> tuple[float, float]:
-    """Valid range of theta entry ``key`` in a fit (physical range; Coulomb <= breakaway for the testbed; a
-    hysteresis span a full swing of the load saturates)."""
+    """Valid range of theta entry ``key`` in a fit (physical range; Coulomb <= breakaway for the testbed; the
+    hysteresis span at most a quarter of the load range)."""
     if key == "inertia":
         return INERTIA_RANGE[0] * theta0["inertia"], INERTIA_RANGE[1] * theta0["inertia"]
     if key == "effort_gain":

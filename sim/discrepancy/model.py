@@ -38,7 +38,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from models.gim8108_testbed.derived import derive
-from sim.discrepancy.effects import NEUTRAL
+from sim.discrepancy.effects import NEUTRAL, rolled_off
 from sim.discrepancy.rig import Rig
 from sim.discrepancy.signals import AnalysisConfig, Prepared, testbed_constants
 from sim.motor_torque import CurrentToTorqueMap
@@ -229,9 +229,7 @@ class Surrogate:
         def compute() -> np.ndarray:
             peak = theta["peak_effort"]
             limit = self.const.get("command_limit", peak)  # the testbed driver's; a rigid rig saturates at its peak
-            u = np.clip(d.u, -limit, limit)
-            if theta["torque_rolloff"] and math.isfinite(peak):  # lost fraction: up to c at peak effort, c beyond
-                u = u * (1.0 - theta["torque_rolloff"] * np.minimum(np.abs(u) / peak, 1.0) ** 2)
+            u = rolled_off(d.u, theta["torque_rolloff"], peak, limit)
             if saturation:  # the testbed motor's own current-to-torque map, after any roll-off (its clip is above)
                 u = CurrentToTorqueMap(saturation, math.inf).delivered_nm(u)
             # command k is held during (t_k - dt, t_k]: place it at the hold's centre, then delay and lag it

@@ -30,6 +30,7 @@ from dataclasses import dataclass
 import mujoco
 import numpy as np
 
+from sim.discrepancy.effects import rolled_off
 from sim.discrepancy.rig import Rig
 from sim.motor_torque import CurrentToTorqueMap
 from sim.plant import SIGNAL_UNITS, Plant
@@ -71,10 +72,7 @@ def command_map(rig: Rig) -> Callable[[float], float]:
         raise ValueError("torque_constant_nonlinearity needs the rig's peak effort (peak_effort)")
 
     def mapped(u: float) -> float:
-        if c:  # as TestbedSurrogate.delivered: the lost fraction grows to c at peak effort and stays there
-            u = min(max(u, -limit), limit)
-            u = u * (1.0 - c * min(abs(u) / peak, 1.0) ** 2)
-        return u
+        return float(rolled_off(u, c, peak, limit)) if c else u  # (the plant and the rigid joint clip anyway)
 
     return mapped
 

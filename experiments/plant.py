@@ -1,6 +1,9 @@
 """Model card: every parameter with unit and source, and the derived and simulated quantities.
 
-    python -m experiments.plant [--params TOML] [--json PATH] [--rerun PATH.rrd] [--rerun-spawn]
+    python -m experiments.plant [--params TOML] [--json PATH] [--plot DIR] [--rerun PATH.rrd] [--rerun-spawn]
+
+--plot DIR (default out/) saves ``plant.png``: the motor's current-to-torque map with its driver limit, and the
+two measurements the card simulates (breakaway ramp, backlash reversal) beside their parameters.
 
 --rerun / --rerun-spawn record the two measurements the card simulates tick by tick: the breakaway ramp (free
 fixture) and the backlash reversal (locked fixture), as they ran for the card (no extra simulation).
@@ -17,6 +20,7 @@ from experiments.common import (add_params_arg, add_rerun_args, load_params_arg,
                                 write_outputs)
 from models.gim8108_testbed.derived import FIXTURES, derive, lumped_modes_hz, physics_timestep
 from sim.characterize import linearizable_plant, linearized_modes, measure_backlash, measure_breakaway
+from sim.figures import save_figure
 from sim.motor_torque import CurrentToTorqueMap
 from sim.params import TestbedParams
 from sim.runlog import RunLog
@@ -126,17 +130,54 @@ def format_card(card: PlantCard) -> str:
     return "\n".join(lines)
 
 
+def plot_card(card: PlantCard, params: TestbedParams, directory: Path) -> Path:
+    """Figure of the motor map and the simulated breakaway and backlash (``card.logs`` needed) [PNG path]."""
+    import matplotlib.pyplot as plt
+    import numpy as np
+
+    motor = CurrentToTorqueMap.from_params(params)
+    limit, peak = motor.command_limit_nm, params.motor.peak_torque_nm
+    fig, (ax_map, ax_brk, ax_bl) = plt.subplots(1, 3, figsize=(14, 4))
+    command = np.linspace(0.0, 1.15 * limit, 400)
+    applied = np.minimum(command, limit)
+    ax_map.plot(command, applied, "k--", lw=1, label="driver's estimate (linear in current)")
+    ax_map.plot(command, motor.delivered_nm(applied), "C0", label="delivered torque")
+    ax_map.axhline(peak, color="C3", lw=0.8, ls=":", label=f"peak {peak:g} N·m (paper Sec. II)")
+    ax_map.axvline(limit, color="C2", lw=0.8, ls=":", label=f"driver limit {limit:.1f} N·m")
+    ax_map.set(xlabel="torque command [N·m]", ylabel="torque [N·m]",
+               title=f"motor: current-to-torque map\nα = {motor.saturation_per_nm:g} /(N·m), τ = c/(1 + α|c|)")
+    ax_map.legend(fontsize=8)
+    ramp = card.logs[BREAKAWAY_RUN].columns
+    ax_brk.plot(ramp["tau_cmd"], ramp["qd_motor"], "C0")
+    ax_brk.axvline(card.derived["breakaway_torque_measured"]["value"], color="C2", ls=":",
+                   label=f"measured {card.derived['breakaway_torque_measured']['value']:.3f} N·m")
+    ax_brk.axvline(params.friction.breakaway_torque_nm, color="C3", ls="--", lw=0.8,
+                   label=f"parameter {params.friction.breakaway_torque_nm:g} N·m (paper Sec. V)")
+    ax_brk.set(xlabel="torque command [N·m]", ylabel="motor velocity, output side [rad/s]",
+               title="breakaway ramp, free lever\n(velocity sustained > 100 ms)")
+    ax_brk.legend(fontsize=8)
+    rev = card.logs[BACKLASH_RUN].columns
+    width_mrad = card.derived["backlash_width_measured"]["value"] * 1e3
+    ax_bl.plot(rev["force_loadcell"] * params.lever.length_m, rev["q_motor"] * 1e3, "C0", lw=0.8)
+    ax_bl.set(xlabel="load-cell torque [N·m]", ylabel="motor angle, output side [mrad]",
+              title=f"backlash reversal, locked lever\ndead band {width_mrad:.3f} mrad (parameter "
+                    f"{params.backlash.width_rad * 1e3:g} mrad)")
+    return save_figure(fig, directory, "plant.png")
+
+
 def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description="Print the testbed's model card.")
     add_params_arg(parser)
     parser.add_argument("--json", type=Path, help="write the card as JSON to this path")
+    parser.add_argument("--plot", type=Path, metavar="DIR", default=Path("out"),
+                        help="save the card's figure (plant.png) in DIR (default out/)")
     add_rerun_args(parser, "the breakaway ramp (free fixture) and backlash reversal (locked fixture) runs the "
                            "card simulates (kept while measuring, not re-run)")
     args = parser.parse_args(argv)
     params = load_params_arg(parser, args)
-    card = run_plant_card(params, keep_logs=rerun_requested(args))
+    card = run_plant_card(params, keep_logs=rerun_requested(args) or bool(args.plot))
     print(format_card(card))
-    write_outputs(args, card.to_dict())
+    write_outputs(args, card.to_dict(), lambda directory: plot_card(card, params, directory))
     record_rerun(args, card.logs, params)
 
 

@@ -15,10 +15,11 @@ def run(*args: str) -> subprocess.CompletedProcess:
 
 
 def test_plant_card_prints_the_tables_and_writes_the_json(tmp_path):
-    """experiments.plant: parameter table, derived quantities, and the JSON keys the issue fixes."""
+    """experiments.plant: parameter table, derived quantities, the JSON keys the issue fixes, and its figure."""
     out = tmp_path / "card.json"
-    result = run("experiments.plant", "--json", str(out))
+    result = run("experiments.plant", "--json", str(out), "--plot", str(tmp_path))
     assert result.returncode == 0, result.stderr
+    assert (tmp_path / "plant.png").stat().st_size > 0 and f"figure: {tmp_path / 'plant.png'}" in result.stdout
     assert "flexure_stiffness" in result.stdout and "paper: 5975 Hz estimate, 3407 Hz FEA" in result.stdout
     card = json.loads(out.read_text())
     assert set(card["parameters"]["friction.breakaway_torque_nm"]) == {"value", "unit", "source"}

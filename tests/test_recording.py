@@ -208,7 +208,7 @@ def test_plant_card_records_the_breakaway_ramp_and_backlash_reversal_it_measured
     from sim.characterize import BREAKAWAY_RAMP_NM_PER_S, BREAKAWAY_SUSTAIN_S
 
     path, out = tmp_path / "plant.rrd", tmp_path / "card.json"
-    plant.main(["--rerun", str(path), "--json", str(out)])
+    plant.main(["--rerun", str(path), "--json", str(out), "--plot", str(tmp_path)])
     breakaway = json.loads(out.read_text())["derived"]["breakaway_torque_measured"]["value"]
     rows, static = read_back(path)
     ramp_ticks = round(breakaway / BREAKAWAY_RAMP_NM_PER_S / 1e-3) + round(BREAKAWAY_SUSTAIN_S / 1e-3)

@@ -11,7 +11,8 @@ breakaway (0.13 N·m, paper Sec. V) is fixed. For every candidate of a grid over
 step, disturbance, sine and square tests of Tables VI-VII under both feedbacks (``experiments.step``,
 ``experiments.sinusoid``, the same code the CLIs run) and scores the candidate by the RMS over the 20
 figures of the natural-log ratio ln(sim / paper) (a factor 1.5 is 0.405). The grid is coarse on purpose:
-each candidate costs ~1 min of simulation, and each value on it is physically plausible (sources below).
+each candidate costs 12 s to 1 min of simulation (machine and load), and each value on it is physically
+plausible (sources below).
 
 Grid (every value physically plausible):
 * friction.coulomb_torque_nm: 0.09 (Stribeck drop to 0.7 of breakaway, typical greased planetary) or

@@ -148,9 +148,9 @@ def plot_card(card: PlantCard, params: TestbedParams, directory: Path) -> Path:
                title=f"motor: current-to-torque map\nα = {motor.saturation_per_nm:g} /(N·m), τ = c/(1 + α|c|)")
     ax_map.legend(fontsize=8)
     ramp = card.logs[BREAKAWAY_RUN].columns
+    breakaway_nm = card.derived["breakaway_torque_measured"]["value"]
     ax_brk.plot(ramp["tau_cmd"], ramp["qd_motor"], "C0")
-    ax_brk.axvline(card.derived["breakaway_torque_measured"]["value"], color="C2", ls=":",
-                   label=f"measured {card.derived['breakaway_torque_measured']['value']:.3f} N·m")
+    ax_brk.axvline(breakaway_nm, color="C2", ls=":", label=f"measured {breakaway_nm:.3f} N·m")
     ax_brk.axvline(params.friction.breakaway_torque_nm, color="C3", ls="--", lw=0.8,
                    label=f"parameter {params.friction.breakaway_torque_nm:g} N·m (paper Sec. V)")
     ax_brk.set(xlabel="torque command [N·m]", ylabel="motor velocity, output side [rad/s]",

@@ -171,7 +171,7 @@ def canonical(theta: dict[str, float], joint: str) -> dict[str, float]:
     return theta
 
 
-def rolled_off(u, rolloff: float, peak: float, limit: float):
+def rolled_off(u: float | np.ndarray, rolloff: float, peak: float, limit: float) -> float | np.ndarray:
     """The effort command after the drive's clip at ±``limit`` and the ``torque_constant_nonlinearity`` roll-off:
     u·(1 - c·min(|u|/peak, 1)²), the lost fraction growing to c at peak effort and staying there [N·m | N].
     Floats and arrays alike; the one definition the simulator (``simulate.command_map``) and the surrogate

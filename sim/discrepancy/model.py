@@ -231,7 +231,7 @@ class Surrogate:
             limit = self.const.get("command_limit", peak)  # the testbed driver's; a rigid rig saturates at its peak
             u = rolled_off(d.u, theta["torque_rolloff"], peak, limit)
             if saturation:  # the testbed motor's own current-to-torque map, after any roll-off (its clip is above)
-                u = CurrentToTorqueMap(saturation, math.inf).delivered_nm(u)
+                u = CurrentToTorqueMap(saturation, peak).delivered_nm(u)
             # command k is held during (t_k - dt, t_k]: place it at the hold's centre, then delay and lag it
             shifted = np.interp(d.t - (theta["delay"] + lag), d.t - 0.5 * d.dt, u)
             return d.filt(theta["effort_gain"] * shifted)

@@ -120,7 +120,11 @@ class BacklashParams:
         "0.2°) prefers it with load_friction_coefficient 0.05 and torque_saturation_per_nm 0.0176: Tables "
         "VI-VII RMS |ln ratio| 0.438 against 0.69 at 1.0 mrad (2026-11-25; with the earlier quadratic droop "
         "0.43 against 0.89 at 3.5 mrad); the impacts of crossing a wide dead band under "
-        "sensor feedback make peak errors of 0.5 N·m where the paper has 0.03-0.08 N·m", 0.0, 0.2,
+        "sensor feedback make peak errors of 0.5 N·m where the paper has 0.03-0.08 N·m. SteadyWin's GIM8108-8 "
+        "sheet gives about 15 arcmin (4.4 mrad; as transcribed in public ODrive integration notes, not "
+        "checked against the vendor's page), a catalogue bound: at 4.4 mrad the 0.05 N·m sine's and the "
+        "0.1 N·m square's sensor-feedback peak errors are 21x and 9.4x the paper's (2026-11-25), so the "
+        "paper's unit is much tighter than that bound", 0.0, 0.2,
         low_open=True)
     stop_time_constant_s: float = quantity(
         1.25e-4, "s", "tuned: solref time constant of the stops, two physics steps (the stiffest MuJoCo "

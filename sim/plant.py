@@ -136,6 +136,22 @@ class Plant:
         self._ticks = 0
         self._tau_cmd = 0.0
 
+    def hold_commands(self, past_commands_nm) -> None:
+        """Put the driver in the state the commands of the past control ticks leave it in [N·m, output side,
+        oldest first; the last is the tick just before]: its delay buffer holding them and the armature current at
+        the value it tracks now. For a replay starting mid-log: a driver at rest would deliver nothing for its
+        first milliseconds (the delay, then the current loop's rise)."""
+        limit = self._command_limit_nm
+        ctrl = self._torque_map.delivered_nm(np.clip(np.asarray(past_commands_nm, dtype=float), -limit, limit))
+        ctrl = np.atleast_1d(ctrl) / self._gear  # as step() sets it
+        m, d = self.model, self.data
+        prime_ctrl_history(m, d, self._u_motor, ctrl, self._tick_s)
+        tracked = ctrl[len(ctrl) - min(_ticks_back(self.params.motor.command_delay_s, self._tick_s), len(ctrl))]
+        d.ctrl[self._u_motor] = ctrl[-1]
+        d.act[self._act_current] = tracked / self.params.motor.torque_constant_nm_per_a
+        self._tau_cmd = float(np.asarray(past_commands_nm, dtype=float).ravel()[-1])
+        mujoco.mj_forward(m, d)
+
     def _set_load_friction(self, load_nm: float) -> None:
         # Load-dependent gear friction (efficiency) is not native to MuJoCo. It is the gear joint's
         # frictionloss, (1 - η)·|transmitted torque|, set once per control tick: a stateless constraint row
@@ -289,3 +305,22 @@ class Plant:
     def motor_temperature_c(self) -> float:
         """Motor winding temperature [°C]."""
         return self.thermal.motor_c
+
+
+def _ticks_back(age_s: float, tick_s: float) -> int:
+    """Which past control tick (1: the last one) was applied ``age_s`` [s] before now."""
+    return max(1, math.ceil(age_s / tick_s - 1e-9))
+
+
+def prime_ctrl_history(model: mujoco.MjModel, data: mujoco.MjData, actuator: int, past_ctrl: np.ndarray,
+                       tick_s: float) -> None:
+    """Fill a delayed actuator's history buffer with the ctrl values of past control ticks of ``tick_s`` [s]
+    (oldest first), by the buffer's timestamps after a reset (..., -2h, -h); older samples than ``past_ctrl``
+    covers take its oldest value. Nothing for an actuator without delay."""
+    nsample = int(model.actuator_history[actuator, 0])
+    if not nsample:
+        return
+    past = np.asarray(past_ctrl, dtype=float).ravel()
+    ages = model.opt.timestep * np.arange(nsample, 0, -1)
+    back = np.minimum([_ticks_back(age, tick_s) for age in ages], len(past))
+    mujoco.mj_initCtrlHistory(model, data, actuator, None, np.ascontiguousarray(past[len(past) - back][:, None]))

@@ -93,6 +93,11 @@ def baseline_theta(rig: Rig) -> dict[str, float]:
     return theta
 
 
+def stribeck_level(velocity: np.ndarray, coulomb: float, breakaway: float, stribeck_velocity: float) -> np.ndarray:
+    """Sliding friction level g(v) = F_c + (F_s - F_c)·exp(-(v/v_s)²) [N·m | N] (the plant's LuGre curve)."""
+    return coulomb + (breakaway - coulomb) * np.exp(-(velocity / stribeck_velocity) ** 2)
+
+
 def bristle_state(step_velocity: np.ndarray, g: np.ndarray, stiffness: float, dt: float) -> np.ndarray:
     """LuGre bristle deflection z [rad] driven by a measured velocity, integrated exactly per sample.
 
@@ -256,8 +261,7 @@ class Surrogate:
                 sigma1 = 2.0 * self.const["presliding_damping_ratio"] * math.sqrt(
                     sigma0 * self.const["rotor_reflected_inertia"])
                 v = d.step_velocity
-                g = fc + (fs - fc) * np.exp(-(v / vs) ** 2)
-                z = bristle_state(v, g, sigma0, d.dt)
+                z = bristle_state(v, stribeck_level(v, fc, fs, vs), sigma0, d.dt)
                 # the bristle rate at the sample time: MuJoCo's dcmotor applies σ1·(z_{n+1} - z_n)/h at every
                 # physics step, so its mean over a control tick is σ1·(z_k - z_{k-1})/dt, centred half a sample
                 # before t_k; the balance compares every other term at t_k (filtered, centred derivatives), so
@@ -268,7 +272,7 @@ class Surrogate:
 
             return self._cached("friction", key, compute)
         v = d.velocity
-        return np.sign(v) * (fc + (fs - fc) * np.exp(-(v / vs) ** 2))
+        return np.sign(v) * stribeck_level(v, fc, fs, vs)
 
     def gravity(self, theta: dict[str, float]) -> np.ndarray | float:
         """Load of the weight of the moving part [N·m | N]."""

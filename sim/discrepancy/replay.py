@@ -1,11 +1,25 @@
 """Windowed replay of the held-out part through MuJoCo: the log's command into the baseline and extended rig.
 
-Each window (``config.replay_window_s``) starts from the measured state, so an integrating plant under
-closed-loop commands does not drift away: the motor angle and velocity from the encoder, the flexure twist
-from the measured transmitted torque (τ/K_t), the hub inside the dead band where the angles put it. The
-LuGre bristle state and the actuator's delay buffer start empty (a transient of a few ms per window). The
-compared signal is the load-cell torque (locked fixture), or the lever angle relative to the window start
-(free fixture and rigid joints).
+Each window (``config.replay_window_s``) starts from the state the log measures at the sample before it, so an
+integrating plant under closed-loop commands does not drift away, and the window's first command is the one the
+log applied next:
+
+* the flexure twist from the measured transmitted torque (τ/K_t), the LuGre bristle deflection the measured
+  motor motion implies (:func:`measured_bristle_rad`), the drive's delay buffer holding the log's commands of
+  the ticks before (``COMMAND_HISTORY_TICKS``) and, on the testbed, its current loop at the value they set
+  (:meth:`sim.plant.Plant.hold_commands`); a rigid joint: position and velocity;
+* locked fixture: the lever where the load cell's deflection puts it, a loaded hub pressed into the stop its
+  torque closes (as far as the stop's soft constraint yields, :func:`stop_compliance_rad_per_nm`), the motor
+  behind them; velocities from the rates of the load and of the twist. The load cell resolves the lever's
+  position far better than the encoders (one count is 0.2 N·m at the load cell);
+* free fixture: the motor angle and velocity from the encoder, the hub inside the dead band where the angles
+  put it.
+
+On the model's own 10 s logs the replay retraces the log to 0.008 N·m (locked, the load cell's noise),
+0.0002 rad (free) and 0.005 N·m (closed loop) RMS; started one tick late, with empty bristle and driver states
+and the hub at the stop's edge, it missed by 0.14 N·m, 0.032 rad and 0.084 N·m, most of it in each window's
+first milliseconds (tests/test_discrepancy_model_log.py). The compared signal is the load-cell torque (locked fixture), or the
+lever angle relative to the window start (free fixture and rigid joints).
 """
 
 from __future__ import annotations
@@ -16,6 +30,7 @@ from typing import Any
 
 import numpy as np
 
+from sim.discrepancy.model import bristle_state, stribeck_level
 from sim.discrepancy.rig import Rig
 from sim.discrepancy.signals import AnalysisConfig, Prepared
 from sim.discrepancy.simulate import InitialState, run_rigid, run_testbed, testbed_plant
@@ -41,17 +56,18 @@ def _lever_angle(log: RunLog, data: Prepared) -> np.ndarray:
     return data.q if data.q is not None else _motor_angle(log, data)
 
 
-def measured_state(log: RunLog, rig: Rig, data: Prepared, *, at_rest: bool = False) -> Callable[[int], InitialState]:
-    """k -> a function that puts the plant of ``rig`` into the log's measured state at sample k.
-
-    Testbed: motor angle and velocity from the encoder, flexure twist from the measured transmitted torque
-    (τ/K_t), the hub inside the dead band where the angles put it. Rigid joint: position and velocity. The
-    LuGre bristle state and the actuator's delay buffer start empty. ``at_rest``: velocity zero (at the ends
-    of a log the zero-phase filter's velocity is not reliable).
+def measured_state(log: RunLog, rig: Rig, data: Prepared, *, at_rest: bool = False,
+                   contact_torque: float = AnalysisConfig.contact_torque) -> Callable[[int], InitialState]:
+    """k -> a function that puts the plant of ``rig`` into the log's measured state at sample k (the module
+    docstring says how). Rigid joint: position and velocity. ``at_rest``: velocities zero (at the ends of a log
+    the zero-phase filter's velocity is not reliable); ``contact_torque`` [N·m]: above it the hub is loaded.
+    The driver's state is set by the run (``previous_command`` of :func:`sim.discrepancy.simulate.run_testbed`).
     """
-    velocity = np.zeros(len(data.velocity)) if at_rest else data.velocity
+    velocity = data.velocity
     if rig.model != "testbed":
         q = np.asarray(log["q"], dtype=float)
+        if at_rest:
+            velocity = np.zeros(len(q))
 
         def rigid_state(k: int) -> InitialState:
             def initial(model: Any, d: Any) -> None:
@@ -61,27 +77,97 @@ def measured_state(log: RunLog, rig: Rig, data: Prepared, *, at_rest: bool = Fal
     assert rig.params is not None
     from models.gim8108_testbed.derived import derive
 
-    k_t = derive(rig.params).flexure_stiffness_nm_per_rad
+    derived = derive(rig.params)
+    k_t = derived.flexure_stiffness_nm_per_rad
     half_gap = 0.5 * rig.params.backlash.width_rad
-    q_motor = _motor_angle(log, data)
-    q_lever = _lever_angle(log, data)
+    bristle = measured_bristle_rad(rig, data) * rig.params.motor.gear_ratio  # motor side: MuJoCo's dcmotor state
+    q_motor, q_lever = _motor_angle(log, data), _lever_angle(log, data)
     tau = (data.tau_loadcell if data.tau_loadcell is not None else
            data.tau_sensor if data.tau_sensor is not None else np.zeros(len(q_motor)))
+    flex_rate = -np.gradient(tau, data.dt) / k_t  # rates from the filtered load (the raw reading is noisy)
+    locked = rig.fixture == "locked" and "force_loadcell" in log.columns
+    if locked:
+        # The load cell's own deflection places the lever, the motor sits behind it by the flexure's twist and the
+        # gap: at the load cell's stiffness (5.5 kN·m/rad at the defaults) one count of the motor encoder
+        # (12 µrad at the output) is 0.07 N·m, one of the lever encoder (48 µrad) 0.26 N·m; the load cell's
+        # reading is good to its noise. The encoders only say where in the dead band an unloaded hub floats.
+        # Positions from the raw reading: the 25 Hz filter rounds the load's stick-slip corners by several
+        # 0.01 N·m, which a window starting there would keep in the flexure.
+        k_lc = derived.loadcell_rot_stiffness_nm_per_rad
+        velocity = np.gradient(tau, data.dt) / k_lc - flex_rate
+        tau = np.asarray(log["force_loadcell"], dtype=float) * rig.params.lever.length_m
+        q_lever_loadcell = tau / k_lc
+        stop_rad_per_nm = stop_compliance_rad_per_nm(rig)
+    if at_rest:
+        velocity = flex_rate = np.zeros(len(tau))
 
     def testbed_state(k: int) -> InitialState:
         def initial(model: Any, d: Any) -> None:
             adr = {name: model.joint(name).qposadr[0] for name in ("motor", "backlash", "flexure")}
             flex = -tau[k] / k_t
             gap = min(max(q_lever[k] - q_motor[k] - flex, -half_gap), half_gap)
-            d.qpos[adr["motor"]], d.qpos[adr["backlash"]], d.qpos[adr["flexure"]] = q_motor[k], gap, flex
+            motor = q_motor[k]
+            if locked:
+                if abs(tau[k]) > contact_torque:  # loaded: the hub presses into the stop its torque closes
+                    gap = -math.copysign(half_gap + stop_rad_per_nm * abs(tau[k]), tau[k])
+                motor = q_lever_loadcell[k] - flex - gap
+            d.qpos[adr["motor"]], d.qpos[adr["backlash"]], d.qpos[adr["flexure"]] = motor, gap, flex
             d.qvel[model.joint("motor").dofadr[0]] = velocity[k]
+            d.qvel[model.joint("flexure").dofadr[0]] = flex_rate[k]
+            d.act[model.actuator_actadr[model.actuator("motor").id]] = bristle[k]
         return initial
     return testbed_state
 
 
-def _replay(log: RunLog, rig: Rig, data: Prepared, windows: list[tuple[int, int]]) -> tuple[np.ndarray, str, str]:
+STOP_CALIBRATION_NM = 10.0  # [N·m] held on the locked lever to measure the stop's compliance
+STOP_CALIBRATION_TICKS = 300  # control ticks of that hold (the stop settles within a few ms)
+
+
+def stop_compliance_rad_per_nm(rig: Rig) -> float:
+    """How far the loaded hub presses into its backlash stop per N·m [rad/(N·m)]: MuJoCo's soft stop constraint
+    (solref, solimp) yields under load; measured by holding STOP_CALIBRATION_NM on the rig's locked lever.
+
+    A replay window that put a loaded hub at the stop's edge would start without the stop's force, and the load
+    cell would swing by tenths of a N·m in its first milliseconds while the hub settles those few µrad."""
+    if rig.fixture != "locked":
+        raise ValueError("the stop's compliance is measured on the locked fixture")
+    plant = testbed_plant(rig)
+    plant.reset(backlash_side=1)
+    for _ in range(STOP_CALIBRATION_TICKS):
+        plant.step(STOP_CALIBRATION_NM)
+    depth = abs(plant.backlash_angle_rad) - 0.5 * rig.params.backlash.width_rad
+    return max(depth, 0.0) / abs(plant.flexure_torque_nm)
+
+
+def measured_bristle_rad(rig: Rig, data: Prepared) -> np.ndarray:
+    """The LuGre bristle deflection [rad, output-referred] the measured motor motion implies at each sample, at
+    the rig's friction parameters (the surrogate's exact per-sample update,
+    :func:`sim.discrepancy.model.bristle_state`).
+
+    A stuck gear holds part of its load in the bristle; a window started with an empty bristle lets the motor
+    creep up to a presliding displacement g/σ0 before it holds, which shifts the load-cell torque by up to the
+    drivetrain stiffness times that displacement for as long as the gear stays stuck."""
+    fr = rig.params.friction
+    v = data.step_velocity
+    g = stribeck_level(v, fr.coulomb_torque_nm, fr.breakaway_torque_nm, fr.stribeck_velocity_rad_s)
+    return bristle_state(v, g, fr.presliding_stiffness_nm_per_rad, data.dt)
+
+
+# Control ticks of commands before a window that prime the drive's delay buffer (20 ms: longer than any delay
+# the analysis fits, the rig's 0.5 ms plus a transport delay of a few ms).
+COMMAND_HISTORY_TICKS = 20
+
+
+def _replay(log: RunLog, rig: Rig, data: Prepared, windows: list[tuple[int, int]],
+            contact_torque: float) -> tuple[np.ndarray, str, str]:
     u = np.asarray(log["tau_cmd"], dtype=float)
-    state_at = measured_state(log, rig, data)
+    state_at = measured_state(log, rig, data, contact_torque=contact_torque)
+    for start, _ in windows:  # each window starts from the state at the sample before it
+        if start < 1:
+            raise ValueError("a replay window cannot start at the log's first sample")
+
+    def history(start: int) -> np.ndarray:
+        return u[max(0, start - COMMAND_HISTORY_TICKS):start]
     out = []
     if rig.model == "testbed":
         assert rig.params is not None
@@ -89,8 +175,8 @@ def _replay(log: RunLog, rig: Rig, data: Prepared, windows: list[tuple[int, int]
         locked = rig.fixture == "locked"
         q_lever = _lever_angle(log, data)
         for start, stop in windows:
-            run = run_testbed(rig, lambda i, s, k=start: float(u[k + i]), stop - start, initial=state_at(start),
-                              plant=plant)
+            run = run_testbed(rig, lambda i, s, k=start: float(u[k + i]), stop - start, initial=state_at(start - 1),
+                              plant=plant, previous_commands=history(start))
             if locked:
                 out.append(run.columns["force_loadcell"] * rig.params.lever.length_m)
             else:
@@ -99,7 +185,8 @@ def _replay(log: RunLog, rig: Rig, data: Prepared, windows: list[tuple[int, int]
     else:
         q = np.asarray(log["q"], dtype=float)
         for start, stop in windows:
-            run = run_rigid(rig, lambda i, s, k=start: float(u[k + i]), stop - start, initial=state_at(start))
+            run = run_rigid(rig, lambda i, s, k=start: float(u[k + i]), stop - start, initial=state_at(start - 1),
+                            previous_commands=history(start))
             out.append(run.columns["q"] - q[start])
         signal, unit = "position from window start", "m" if rig.joint == "slide" else "rad"
     return np.concatenate(out), signal, unit
@@ -123,8 +210,8 @@ def replay_held_out(log: RunLog, baseline: Rig, extended: Rig, data: Prepared, c
     if not windows:
         return {}
     measured = _measured(log, baseline, data, windows)
-    sim_base, signal, unit = _replay(log, baseline, data, windows)
-    sim_ext, _, _ = _replay(log, extended, data, windows)
+    sim_base, signal, unit = _replay(log, baseline, data, windows, config.contact_torque)
+    sim_ext, _, _ = _replay(log, extended, data, windows, config.contact_torque)
     time = np.concatenate([data.t[a:b] for a, b in windows])
     rmse = lambda x: float(math.sqrt(np.mean((x - measured) ** 2)))  # noqa: E731
     return {"signal": signal, "unit": unit, "windows": len(windows), "window_s": config.replay_window_s,

@@ -33,7 +33,7 @@ import numpy as np
 from sim.discrepancy.effects import rolled_off
 from sim.discrepancy.rig import Rig
 from sim.motor_torque import CurrentToTorqueMap
-from sim.plant import SIGNAL_UNITS, Plant
+from sim.plant import SIGNAL_UNITS, Plant, prime_ctrl_history
 
 RIGID_SUBSTEPS = 5  # rigid joint: physics steps per control tick (no stiff mode; the dry-friction row's time
 # constant is two physics steps, as the testbed's tuned rows)
@@ -103,19 +103,24 @@ InitialState = Callable[[mujoco.MjModel, mujoco.MjData], None]  # sets qpos/qvel
 
 
 def run_testbed(rig: Rig, command: CommandFn, n_ticks: int, *, backlash_side: int = 0,
-                initial: InitialState | None = None, plant: Plant | None = None) -> SimulatedRun:
+                initial: InitialState | None = None, plant: Plant | None = None,
+                previous_commands: np.ndarray | None = None) -> SimulatedRun:
     """Run the testbed of ``rig`` for ``n_ticks`` with a command function; true signals of every tick.
 
-    ``initial`` sets the state after the reset (a replay window starting from a measured state); ``plant``
-    reuses a plant built by :func:`testbed_plant` for this rig (windows of one replay).
+    ``initial`` sets the state after the reset (a replay window starting from a measured state);
+    ``previous_commands`` [N·m], the commands of the ticks before (oldest first), put the driver in the state
+    they leave it in (:meth:`sim.plant.Plant.hold_commands`); ``plant`` reuses a plant built by
+    :func:`testbed_plant` for this rig (windows of one replay).
     """
     plant = plant or testbed_plant(rig)
     plant.reset(backlash_side=backlash_side)
     if initial is not None:
         initial(plant.model, plant.data)
         mujoco.mj_forward(plant.model, plant.data)
-    plant.data.joint("motor").qfrc_applied[0] = asymmetry_offset(rig)  # output side; cleared by Plant.reset
     cmd_map = command_map(rig)
+    if previous_commands is not None:
+        plant.hold_commands([cmd_map(float(u)) for u in previous_commands])
+    plant.data.joint("motor").qfrc_applied[0] = asymmetry_offset(rig)  # output side; cleared by Plant.reset
     grav = _effect(rig, "gravity")
     names = list(SIGNAL_UNITS)
     out = np.empty((n_ticks, len(names)))
@@ -174,18 +179,25 @@ def rigid_xml(rig: Rig) -> str:
 </mujoco>"""
 
 
-def run_rigid(rig: Rig, command: CommandFn, n_ticks: int, *, initial: InitialState | None = None) -> SimulatedRun:
-    """Run a rigid joint rig; columns time, tau_cmd, q, qd (SI: N and m for a slide)."""
+def run_rigid(rig: Rig, command: CommandFn, n_ticks: int, *, initial: InitialState | None = None,
+              previous_commands: np.ndarray | None = None) -> SimulatedRun:
+    """Run a rigid joint rig; columns time, tau_cmd, q, qd (SI: N and m for a slide). ``initial`` and
+    ``previous_commands`` as for :func:`run_testbed` (the delay buffer holds the past commands)."""
     model = mujoco.MjModel.from_xml_string(rigid_xml(rig))
     data = mujoco.MjData(model)
     if initial is not None:
         initial(model, data)
         mujoco.mj_forward(model, data)
     cmd_map, offset = command_map(rig), asymmetry_offset(rig)
+    drive = model.actuator("drive").id
+    if previous_commands is not None:
+        past = np.array([cmd_map(float(u)) + offset for u in previous_commands])
+        prime_ctrl_history(model, data, drive, past, RIGID_SUBSTEPS * model.opt.timestep)
+        data.ctrl[drive] = past[-1]
     grav = _effect(rig, "gravity")
     cog = _effect(rig, "cogging")
     base_gravity = rig.rigid.get("gravity_amplitude", 0.0)
-    drive, external = model.actuator("drive").id, model.actuator("external").id
+    external = model.actuator("external").id
     out = np.empty((n_ticks, 4))
     state = {"q": float(data.qpos[0]), "qd": float(data.qvel[0])}
     for k in range(n_ticks):

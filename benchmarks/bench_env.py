@@ -28,7 +28,7 @@ import mujoco
 import numpy as np
 
 import sim.plant  # importing sim registers the environment
-from benchmarks.bench_plant import PEER_ENV, best_rate, env_step_rate, peer_rate
+from benchmarks.bench_plant import PEER_ENV, best_rate, env_step_rate, peer_rate, require_peer
 from controllers.feedback import make_feedback
 from controllers.loop import run_torque_loop
 from controllers.pi import PITorqueController
@@ -167,6 +167,7 @@ def main(argv: list[str] | None = None) -> None:
                         help="time by this process's CPU time, not wall time (skips the AsyncVectorEnv)")
     args = parser.parse_args(argv)
     clock = time.process_time if args.cpu_time else time.perf_counter
+    require_peer()
     factory_calibration(TestbedParams())  # once, before timing (and inherited by the forked workers)
     single = env_rate(args.steps, args.repeats, clock)
     parts = breakdown_rates(args.steps, args.repeats, clock)

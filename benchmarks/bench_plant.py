@@ -73,6 +73,17 @@ def env_step_rate(env, action, steps: int, repeats: int, clock=time.perf_counter
     return best_rate(run, steps, repeats, clock)
 
 
+def require_peer() -> None:
+    """Exit, before any measurement, with how to install the peer's dependencies if it cannot be made."""
+    import gymnasium as gym
+
+    try:
+        gym.make(PEER_ENV).close()
+    except (ImportError, gym.error.DependencyNotInstalled) as exc:
+        raise SystemExit(f"{PEER_ENV}, the peer of this benchmark, needs Gymnasium's MuJoCo extras: "
+                         f'pip install -e ".[bench]" ({exc})') from None
+
+
 def peer_rate(steps: int, repeats: int, clock=time.perf_counter) -> float:
     import gymnasium as gym
 
@@ -91,6 +102,7 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--duration", type=float, default=10.0, help="simulated seconds per run (default 10)")
     parser.add_argument("--repeats", type=int, default=3)
     args = parser.parse_args(argv)
+    require_peer()
     r = plant_rates(args.duration, args.repeats)
     peer = peer_rate(r["ticks"], args.repeats)
     coarse, fine = fidelity()

@@ -21,16 +21,16 @@ Paper values: M_d = 0.03 kg·m², B_d = 0.6 N·m·s/rad, K_d = 0, T_s = 1 ms. Th
 Choice of the PD gains (documented, not from the paper)
 -------------------------------------------------------
 The PD moves the geared motor, whose output-referred inertia is dominated by the reflected rotor,
-J ≈ N²·J_rotor = 6.4e-3 kg·m² (+1e-4 for the lever side), against a gear breakaway of 0.13 N·m. We take
-K_p = 30 N·m/rad, so that the breakaway torque leaves at most 0.13/30 = 4.3 mrad of angle error, and
-K_v = 2·sqrt(K_p·J) ≈ 0.9 N·m·s/rad, critically damped: the inner loop's natural frequency
+J ≈ N²·J_rotor = 6.4e-3 kg·m² (+2e-4 for the output flange and the lever side), against a gear breakaway of
+0.13 N·m. We take K_p = 30 N·m/rad, so that the breakaway torque leaves at most 0.13/30 = 4.3 mrad of angle
+error, and K_v = 2·sqrt(K_p·J) ≈ 0.9 N·m·s/rad, critically damped: the inner loop's natural frequency
 sqrt(K_p/J) ≈ 68 rad/s (11 Hz) is 3.4 times the virtual dynamics' corner B_d/M_d = 20 rad/s (3.2 Hz), and its
 velocity-loop crossover K_v/J ≈ 140 rad/s loses only 13° of phase to the ~1.7 ms of sampling, command delay
 and current lag.
 
 Sign: the torque sensor measures the torque the flexure passes from the motor to the lever. A hand pushing
 the lever positive with the motor holding makes that negative, so the external torque on the joint is
-τ_ext = -τ_sensor (quasi-static; the lever side inertia, 1e-4 kg·m², is neglected, as the paper does).
+τ_ext = -τ_sensor (quasi-static; the lever side inertia, 1.9e-4 kg·m², is neglected, as the paper does).
 """
 
 from __future__ import annotations

@@ -1,5 +1,4 @@
-"""Admittance control of the free lever pushed by a scripted hand (paper Sec. V-C, Eqs. 30-34, Fig.
-"admittance").
+"""Admittance control of the free lever pushed by a scripted hand (paper Sec. V-C, Eqs. 30-34, Fig. 13).
 
     python -m experiments.admittance [--seed N] [--duration S] [--json PATH] [--plot DIR] [--params TOML]
 
@@ -20,7 +19,6 @@ dynamics' ω_r (RMS of ω - ω_r over the peak of ω_r).
 
 from __future__ import annotations
 
-import argparse
 import sys
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
@@ -30,7 +28,8 @@ import numpy as np
 from controllers.admittance import AdmittanceController
 from controllers.feedback import make_feedback
 from controllers.loop import run_admittance_loop
-from experiments.common import add_experiment_args, load_params_arg, record_rerun, write_outputs
+from experiments.common import (add_experiment_args, cli_parser, load_params_arg, record_rerun, run_errors,
+                                short_run_banner, write_outputs)
 from sim.figures import save_figure
 from sim.motor_torque import CurrentToTorqueMap
 from sim.params import TestbedParams
@@ -180,11 +179,11 @@ def run_admittance(params: TestbedParams | None = None, seed: int = 0, duration_
 def format_result(result: AdmittanceResult) -> str:
     lines = ["Admittance control (M_d = 0.03 kg·m², B_d = 0.6 N·m·s/rad, K_d = 0), free lever, scripted hand",
              f"{'push':5s} {'time [s]':>8s} {'peak hand torque [N·m]':>23s} {'peak velocity [rad/s]':>22s} "
-             f"{'felt damping [N·m·s/rad]':>25s} {'max lag [rad]':>14s} {'final [rad]':>11s} "
+             f"{'felt damping [N·m·s/rad]':>25s} {'max lag [rad]':>14s} {'final angle [rad]':>18s} "
              f"{'RMS(ω-ω_r)/max ω_r':>19s}"]
     for p in result.pushes:
         lines.append(f"{p.name:5s} {p.push_s:8.2f} {p.peak_hand_torque_nm:23.3f} {p.peak_velocity_rad_s:22.3f} "
-                     f"{p.felt_damping_nms_per_rad:25.3f} {p.max_lag_rad:14.4f} {p.final_angle_rad:11.3f} "
+                     f"{p.felt_damping_nms_per_rad:25.3f} {p.max_lag_rad:14.4f} {p.final_angle_rad:18.3f} "
                      f"{p.velocity_tracking:19.3f}")
     lines.append(f"paper: the lever follows a slow push (sim: {'yes' if result.follows_slow else 'NO'}) and resists "
                  f"a fast one (sim: {'yes' if result.resists_fast else 'NO'})")
@@ -216,17 +215,19 @@ def plot_admittance(result: AdmittanceResult, directory: Path) -> Path:
         axes[2][col].set(ylabel="velocity [rad/s]", xlabel="time [s]")
         for ax in axes[:, col]:
             ax.legend(fontsize=6)
-    fig.suptitle("Admittance control, free lever (paper Fig. admittance)", fontsize=9)
+    fig.suptitle("Admittance control, free lever (paper Fig. 13)", fontsize=9)
     return save_figure(fig, directory, "admittance.png")
 
 
 def main(argv: list[str] | None = None) -> None:
-    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    parser = cli_parser(__doc__, __spec__.name)
     add_experiment_args(parser, feedback=False)
     args = parser.parse_args(argv)
     params = load_params_arg(parser, args)
     print("running the slow and fast pushes (progress on stderr) ...", file=sys.stderr)
-    result = run_admittance(params, args.seed, args.duration, progress=True)
+    with run_errors(parser):
+        result = run_admittance(params, args.seed, args.duration, progress=True)
+    short_run_banner(args)
     print(format_result(result))
     write_outputs(args, result.to_dict(), lambda directory: plot_admittance(result, directory))
     record_rerun(args, result.logs(), params)

@@ -9,13 +9,13 @@ prints every figure beside the paper's.
 
 from __future__ import annotations
 
-import argparse
 import sys
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from experiments.common import add_params_arg, add_rerun_args, load_params_arg, record_log, record_rerun, write_outputs
+from experiments.common import (TARGET_RATIO, add_params_arg, add_rerun_args, cli_parser, format_rows, load_params_arg,
+                                record_log, record_rerun, run_errors, seed_arg, write_outputs)
 from sensor.evaluation import SensorEvaluation, evaluate_sensor
 from sim.figures import save_figure
 from sim.params import TestbedParams
@@ -45,15 +45,6 @@ def comparison_rows(figures: dict[str, tuple[float, str]],
              "ratio": figures[name][0] / value} for name, table, quantity, unit, value in paper]
 
 
-def format_rows(rows: list[dict[str, Any]]) -> str:
-    """A plain-text table of comparison rows."""
-    lines = [f"{'table':<16} {'quantity':<42} {'unit':<5} {'paper':>9} {'sim':>9} {'sim/paper':>9}"]
-    for r in rows:
-        lines.append(f"{r['table']:<16} {r['quantity']:<42} {r['unit']:<5} {r['paper']:>9.4g} {r['sim']:>9.4g} "
-                     f"{r['ratio']:>9.2f}")
-    return "\n".join(lines)
-
-
 @dataclass(frozen=True)
 class CalibrationExperiment:
     """The evaluation, its comparison rows and the figures written (paths)."""
@@ -76,7 +67,7 @@ def run_calibration(params: TestbedParams | None = None, seed: int = 0,
 
 
 def plot_calibration(ev: SensorEvaluation, out_dir: Path) -> list[Path]:
-    """Figures like the paper's Figs. 7-9: channel responses, errors and hysteresis, crosstalk and noise."""
+    """Figures like the paper's Figs. 6-8: channel responses, errors and hysteresis, crosstalk and noise."""
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
@@ -123,8 +114,8 @@ def plot_calibration(ev: SensorEvaluation, out_dir: Path) -> list[Path]:
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog="python -m experiments.calibration", description=__doc__.splitlines()[0])
-    parser.add_argument("--seed", type=int, default=0, help="seed of every noise draw (default 0)")
+    parser = cli_parser(__doc__, __spec__.name)
+    parser.add_argument("--seed", type=seed_arg, default=0, help="seed of every noise draw (default 0)")
     parser.add_argument("--json", type=Path, metavar="PATH", help="write {rows: [...]} and the calibrations")
     parser.add_argument("--plot", type=Path, metavar="DIR", help="write PNG figures to DIR")
     add_params_arg(parser)
@@ -132,8 +123,10 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
     params = load_params_arg(parser, args)
     print("calibrating on the simulated rig (T_z loading, T_x/T_y moments) and evaluating ...", file=sys.stderr)
-    result = run_calibration(params, args.seed, args.plot)
-    print(format_rows(result.rows))
+    with run_errors(parser):
+        result = run_calibration(params, args.seed, args.plot)
+    print(format_rows("Sensor calibration and evaluation (Tables III-IV, the resolution comparison)", result.rows,
+                      band=TARGET_RATIO))
     sel = result.evaluation.gamma_selection
     print(f"\nQP: gamma = {sel.gamma:g} chosen by RMSE^2 + {sel.lambda_weight:g} Var(quiet); "
           f"{result.evaluation.qp.diagnostics.n_active_constraints} active error bounds")

@@ -5,12 +5,23 @@ from __future__ import annotations
 import argparse
 import json
 import math
+import tempfile
+from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
+from models.gim8108_testbed.build import build_xml
+from models.gim8108_testbed.derived import FIXTURES
+from sensor.calibration import InfeasibleCalibrationError
 from sim.params import ParameterError, TestbedParams, load_params
+
+
+def cli_parser(doc: str, module: str) -> argparse.ArgumentParser:
+    """The parser of ``python -m module``: usage under that name, the module docstring's first paragraph as its
+    description (whole sentences, not its first line)."""
+    return argparse.ArgumentParser(prog=f"python -m {module}", description=" ".join(doc.split("\n\n")[0].split()))
 
 
 def add_params_arg(parser: argparse.ArgumentParser) -> None:
@@ -19,11 +30,65 @@ def add_params_arg(parser: argparse.ArgumentParser) -> None:
 
 
 def load_params_arg(parser: argparse.ArgumentParser, args: argparse.Namespace) -> TestbedParams:
-    """Load --params, turning a bad file into a command-line error that names the field."""
+    """Load --params and check the output flags, before anything runs.
+
+    A bad file, or a parameter set the testbed's model cannot be built from (a constraint between fields),
+    becomes a command-line error that names the field; so does a --json or --plot that cannot be written or
+    that names the --params file (inputs are never overwritten).
+    """
+    check_output_paths(parser, args, inputs=(args.params,))
     try:
-        return load_params(args.params)
+        params = load_params(args.params)
+        for fixture in FIXTURES:
+            build_xml(params, fixture)
     except ParameterError as exc:
         parser.error(str(exc))
+    return params
+
+
+@contextmanager
+def run_errors(parser: argparse.ArgumentParser):
+    """Turn what a parameter set can only show once it runs into a command-line error: an infeasible sensor
+    calibration (the sensor parameters leave residuals the paper's 0.2 % FS bound cannot hold)."""
+    try:
+        yield
+    except InfeasibleCalibrationError as exc:
+        parser.error(f"{str(exc).rstrip('.')}. The sensor's parameters (noise, ADC bits, optical response) leave "
+                     f"the QP calibration no solution within the paper's error bound")
+
+
+def check_output_paths(parser: argparse.ArgumentParser, args: argparse.Namespace, inputs=()) -> None:
+    """Refuse, before any simulation, a --json or --plot that cannot be written, or a --json, --rerun or
+    --save-rig that is one of ``inputs`` (paths read by the run; None entries are ignored)."""
+    read = {Path(p).resolve() for p in inputs if p is not None}
+    for flag in ("json", "rerun", "save_rig"):
+        path = getattr(args, flag, None)
+        if path is not None and Path(path).resolve() in read:
+            parser.error(f"--{flag.replace('_', '-')} {path} is an input of this run; inputs are never overwritten")
+    json_path, plot_dir = getattr(args, "json", None), getattr(args, "plot", None)
+    if json_path is not None:
+        if json_path.is_dir():
+            parser.error(f"--json {json_path} is a directory; give a file name, e.g. {json_path / 'result.json'}")
+        _check_writable(parser, "--json", json_path.parent)
+    if plot_dir is not None:
+        if plot_dir.exists() and not plot_dir.is_dir():
+            parser.error(f"--plot {plot_dir} exists and is not a directory")
+        _check_writable(parser, "--plot", plot_dir)
+
+
+def _check_writable(parser: argparse.ArgumentParser, flag: str, directory: Path) -> None:
+    """parser.error unless a file can be created in ``directory`` or, if it does not exist yet, in its nearest
+    existing ancestor (probed with a temporary file that is removed at once)."""
+    existing = directory.resolve()
+    while not existing.exists():
+        existing = existing.parent
+    try:
+        if not existing.is_dir():
+            raise NotADirectoryError(f"{existing} is not a directory")
+        with tempfile.TemporaryFile(dir=existing):
+            pass
+    except OSError as exc:
+        parser.error(f"{flag}: cannot write under {existing} ({exc.strerror or exc})")
 
 
 def _jsonable(x: Any) -> Any:
@@ -67,10 +132,10 @@ def add_experiment_args(parser: argparse.ArgumentParser, *, feedback: bool = Tru
     if feedback:
         parser.add_argument("--feedback", choices=FEEDBACK_CHOICES, default="both",
                             help="torque measurement the PI closes on (default both)")
-    parser.add_argument("--seed", type=int, default=0, help="seed of the sensor noise (default 0)")
-    parser.add_argument("--duration", type=positive_seconds, metavar="S",
-                        help="shorten every test to S seconds (a quick check; the paper's figures need the "
-                             "full length)")
+    parser.add_argument("--seed", type=seed_arg, default=0, help="seed of the sensor noise (default 0)")
+    parser.add_argument("--duration", type=run_seconds, metavar="S",
+                        help=f"shorten every test to about S seconds, {MIN_DURATION_S:g}-{MAX_DURATION_S:g} "
+                             f"(a quick check: the figures are then not comparable with the paper's)")
     parser.add_argument("--json", type=Path, metavar="PATH", help="write the results as JSON")
     parser.add_argument("--plot", type=Path, metavar="DIR", default=Path("out"),
                         help="save PNG figures in DIR (default out/)")
@@ -124,11 +189,46 @@ def record_log(time_s, voltages_v, *, tau_sensor_nm=None, tau_mini85_nm=None, ta
     return RunLog(columns, units, {"fixture": "calibration rig", **(meta or {})})
 
 
-def positive_seconds(text: str) -> float:
-    value = float(text)
-    if not math.isfinite(value) or value <= 0:
-        raise argparse.ArgumentTypeError(f"--duration {text}: must be > 0 s")
+MIN_DURATION_S = 0.01  # [s] ten 1 kHz control ticks: the shortest run whose errors are defined
+MAX_DURATION_S = 3600.0  # [s] an hour of 1 kHz logs per test (tens of MB); the paper's tests last seconds
+
+
+def run_seconds(text: str) -> float:
+    """argparse type of --duration: seconds within [MIN_DURATION_S, MAX_DURATION_S]."""
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a number of seconds") from None
+    if not MIN_DURATION_S <= value <= MAX_DURATION_S:  # also refuses nan
+        raise argparse.ArgumentTypeError(f"{text} s: valid range [{MIN_DURATION_S:g}, {MAX_DURATION_S:g}] s")
     return value
+
+
+def _integer_at_least(text: str, low: int, what: str) -> int:
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not an integer") from None
+    if value < low:
+        raise argparse.ArgumentTypeError(f"{value}: valid {what} are integers >= {low}")
+    return value
+
+
+def seed_arg(text: str) -> int:
+    """argparse type of --seed: an integer >= 0 (numpy's seed sequences take no negative entropy)."""
+    return _integer_at_least(text, 0, "seeds")
+
+
+def positive_int(text: str) -> int:
+    """argparse type of a count: an integer >= 1."""
+    return _integer_at_least(text, 1, "values")
+
+
+def short_run_banner(args: argparse.Namespace) -> None:
+    """With --duration, say before the tables that their figures are not comparable with the paper's."""
+    if getattr(args, "duration", None) is not None:
+        print(f"SHORT RUN (--duration {args.duration:g} s): a check of the command line; the figures below are "
+              f"not comparable with the paper's, which need the full length")
 
 
 def feedback_kinds(choice: str) -> tuple[str, ...]:
@@ -159,22 +259,34 @@ def loadcell_torque_nm(log, seed: int | None = None, noise_n: float = LOADCELL_R
     return torque + rng.normal(0.0, noise_n * log.meta["lever_length_m"], len(torque))
 
 
+TARGET_RATIO = 1.5  # every simulated figure within a factor 1.5 of the paper's (issues 3 and 4)
+
+
+def outside_band(ratio: float | None, band: float = TARGET_RATIO) -> bool:
+    """Whether a sim/paper ratio lies outside [1/band, band]; a ratio <= 0 does, a missing one (None) does not."""
+    return ratio is not None and (ratio <= 0.0 or abs(math.log(ratio)) > math.log(band))
+
+
 def paper_row(table: str, quantity: str, unit: str, paper: float | None, sim: float | None) -> dict[str, Any]:
     """One row of a paper-vs-simulation table; ratio = sim / paper (None if either is missing or paper is 0)."""
     ratio = sim / paper if (paper and sim is not None and math.isfinite(sim)) else None
     return {"table": table, "quantity": quantity, "unit": unit, "paper": paper, "sim": sim, "ratio": ratio}
 
 
-def format_rows(title: str, rows: list[dict[str, Any]]) -> str:
-    """Plain-text table of paper rows: quantity, paper, simulation, ratio."""
+def format_rows(title: str, rows: list[dict[str, Any]], band: float | None = None) -> str:
+    """Plain-text table of paper rows: quantity, paper, simulation, ratio; with ``band``, a ratio outside
+    [1/band, band] is marked."""
     width = max([len(r["quantity"]) for r in rows] + [8])
-    lines = [title, f"{'table':8s} {'quantity':{width}s} {'unit':5s} {'paper':>9s} {'sim':>9s} {'ratio':>6s}"]
+    table_width = max([len(r["table"]) for r in rows] + [8])
+    lines = [title, f"{'table':{table_width}s} {'quantity':{width}s} {'unit':5s} {'paper':>9s} {'sim':>9s} "
+                    f"{'ratio':>6s}"]
 
     def num(x: float | None) -> str:
         return f"{x:9.4g}" if x is not None else f"{'-':>9s}"
 
     for r in rows:
         ratio = f"{r['ratio']:6.2f}" if r["ratio"] is not None else f"{'-':>6s}"
-        lines.append(f"{r['table']:8s} {r['quantity']:{width}s} {r['unit']:5s} {num(r['paper'])} "
-                     f"{num(r['sim'])} {ratio}")
+        off = band is not None and outside_band(r["ratio"], band)
+        lines.append(f"{r['table']:{table_width}s} {r['quantity']:{width}s} {r['unit']:5s} {num(r['paper'])} "
+                     f"{num(r['sim'])} {ratio}{f'  <- outside a factor {band:g}' if off else ''}")
     return "\n".join(lines)

@@ -17,11 +17,10 @@ signal (``replay/measured``, ``replay/baseline``, ``replay/extended``, in the re
 
 from __future__ import annotations
 
-import argparse
 import sys
 from pathlib import Path
 
-from experiments.common import add_rerun_args, record_rerun, write_outputs
+from experiments.common import add_rerun_args, check_output_paths, cli_parser, positive_int, record_rerun, write_outputs
 from sim.discrepancy.analysis import DiscrepancyResult, analyse
 from sim.discrepancy.report import format_result, plot_result
 from sim.discrepancy.rig import Rig, RigError, load_rig, save_rig
@@ -74,17 +73,18 @@ def measured_series(log: RunLog, rig: Rig, result: DiscrepancyResult) -> dict[st
 
 
 def main(argv: list[str] | None = None) -> None:
-    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    parser = cli_parser(__doc__, __spec__.name)
     parser.add_argument("log", type=Path, help="run log (.csv, .parquet, .mat)")
     parser.add_argument("--rig", type=Path, required=True, metavar="TOML", help="rig description")
     parser.add_argument("--json", type=Path, help="write the result as JSON")
     parser.add_argument("--plot", type=Path, metavar="DIR", help="save PNG figures in DIR")
     parser.add_argument("--save-rig", type=Path, metavar="TOML", help="write the extended rig (must not exist)")
-    parser.add_argument("--workers", type=int, default=2, help="processes for the candidate fits (default 2)")
+    parser.add_argument("--workers", type=positive_int, default=2, help="processes for the candidate fits (default 2)")
     parser.add_argument("--no-replay", action="store_true", help="skip the MuJoCo replay of the held-out part")
     add_rerun_args(parser, "the measured log (3D testbed if it has the plant's columns, time series), the "
                            "residuals before and after, and the replay of the held-out part if it ran")
     args = parser.parse_args(argv)
+    check_output_paths(parser, args, inputs=(args.log, args.rig))
     try:
         rig = load_rig(args.rig)
     except RigError as exc:
@@ -96,7 +96,7 @@ def main(argv: list[str] | None = None) -> None:
     except (LogError, FileNotFoundError) as exc:
         parser.error(f"{args.log}: {exc}")
     try:
-        result = analyse(log, rig, AnalysisConfig(workers=max(1, args.workers)), progress=True,
+        result = analyse(log, rig, AnalysisConfig(workers=args.workers), progress=True,
                          replay=not args.no_replay)
     except (RigError, ValueError) as exc:
         parser.error(str(exc))

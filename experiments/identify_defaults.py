@@ -43,7 +43,6 @@ the command line; the scores need the full length).
 
 from __future__ import annotations
 
-import argparse
 import itertools
 import math
 import sys
@@ -52,7 +51,8 @@ from pathlib import Path
 
 import numpy as np
 
-from experiments.common import add_rerun_args, positive_seconds, record_rerun, rerun_requested, write_json
+from experiments.common import (add_rerun_args, check_output_paths, cli_parser, outside_band, record_rerun,
+                                rerun_requested, run_seconds, write_json)
 from experiments.sinusoid import run_sinusoid
 from experiments.step import run_step
 from sim.params import TestbedParams
@@ -92,14 +92,15 @@ def score(rows: list[dict]) -> tuple[float, float]:
 
 
 def main(argv: list[str] | None = None) -> None:
-    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    parser = cli_parser(__doc__, __spec__.name)
     parser.add_argument("--json", type=Path, help="write every candidate's score and the best one's rows as JSON")
-    parser.add_argument("--duration", type=positive_seconds, metavar="S",
+    parser.add_argument("--duration", type=run_seconds, metavar="S",
                         help="shorten every test to S seconds (a quick check of the command line; the scores "
                              "need the full length)")
     add_rerun_args(parser, "the best candidate's step, disturbance and sinusoid runs (kept during the search, "
                            "not re-run)")
     args = parser.parse_args(argv)
+    check_output_paths(parser, args)
     keep = rerun_requested(args)
     results = []
     best_rms, best_logs, best_params = math.inf, {}, None  # the best candidate so far and its runs (--rerun)
@@ -114,7 +115,7 @@ def main(argv: list[str] | None = None) -> None:
         del logs  # only the best candidate's runs stay in memory
         results.append({"overrides": overrides, "rms_log_ratio": rms_log, "max_log_ratio": max_log,
                         "within_1_5": sum(1 for r in rows if r["table"] in FIT_TABLES and r["ratio"]
-                                          and abs(math.log(r["ratio"])) <= math.log(1.5)),
+                                          and not outside_band(r["ratio"])),
                         "rows": rows})
         print(f"[{i + 1}/{len(combos)}] {overrides}: RMS |ln ratio| {rms_log:.3f}, max {max_log:.3f} "
               f"({time.perf_counter() - start:.0f} s)", file=sys.stderr, flush=True)

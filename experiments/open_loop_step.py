@@ -10,14 +10,16 @@ current-feedback steps reached about 30, 40 and 65 % of 0.05, 0.1 and 0.2 N·m (
 
 from __future__ import annotations
 
-import argparse
+import math
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
 import numpy as np
 
-from experiments.common import add_params_arg, add_rerun_args, load_params_arg, record_rerun, write_outputs
+from experiments.common import (add_params_arg, add_rerun_args, cli_parser, load_params_arg, record_rerun, run_seconds,
+                                write_outputs)
 from sim.figures import save_figure
+from sim.motor_torque import CurrentToTorqueMap
 from sim.params import TestbedParams
 from sim.plant import Plant
 from sim.run import run_open_loop
@@ -108,17 +110,22 @@ def plot_result(result: OpenLoopStepResult, directory: Path) -> Path:
 
 
 def main(argv: list[str] | None = None) -> None:
-    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    parser.add_argument("--steps", type=float, nargs="+", default=list(PAPER_STEPS_NM), metavar="N·m")
-    parser.add_argument("--duration", type=float, default=2.0, help="seconds per step (default 2)")
+    parser = cli_parser(__doc__, __spec__.name)
+    parser.add_argument("--steps", type=float, nargs="+", default=list(PAPER_STEPS_NM), metavar="N·m",
+                        help="torque commands of the steps [N·m] (default 0.05 0.1 0.2)")
+    parser.add_argument("--duration", type=run_seconds, default=2.0, metavar="S",
+                        help="seconds per step (default 2)")
     parser.add_argument("--json", type=Path, help="write the results as JSON")
     parser.add_argument("--plot", type=Path, metavar="DIR", help="save a PNG figure in DIR")
     add_params_arg(parser)
     add_rerun_args(parser)
     args = parser.parse_args(argv)
-    if args.duration <= 0:
-        parser.error(f"--duration {args.duration}: must be > 0 s")
     params = load_params_arg(parser, args)
+    limit_nm = CurrentToTorqueMap.from_params(params).command_limit_nm
+    for step_nm in args.steps:
+        if not (math.isfinite(step_nm) and 0.0 < abs(step_nm) <= limit_nm):
+            parser.error(f"--steps {step_nm:g} N·m: valid steps are non-zero, within the driver's command limit "
+                         f"±{limit_nm:.3g} N·m")
     result = run_open_loop_step(params, tuple(args.steps), args.duration)
     print(format_result(result))
     write_outputs(args, result.to_dict(), lambda directory: plot_result(result, directory))

@@ -1,5 +1,5 @@
 """Sine and square-wave torque tracking on the locked testbed, current vs sensor feedback (paper Sec. V-B,
-Table VII, Fig. "sinwave").
+Table VII, Fig. 12).
 
     python -m experiments.sinusoid [--feedback {current,sensor,both}] [--seed N] [--duration S]
                                    [--json PATH] [--plot DIR] [--params TOML]
@@ -16,12 +16,12 @@ against the reference over the evaluated window, with the peak error defined in 
 definition under which the paper's Table VII is consistent). The one-sided actuation of the paper's
 low-torque current-feedback tests is measured as the share of the load-cell torque's impulse that is
 positive: ``positive_share`` = sum(max(y, 0)) / sum(|y|) (0.5 for a symmetric output, 1 for an output that
-never goes negative).
+never goes negative), beside how much torque is produced at all: ``output_level`` = mean |y| / mean |r| (about 1
+when tracking; near 0 for a gear that never breaks free, whose sign share is then only its noise and offset).
 """
 
 from __future__ import annotations
 
-import argparse
 import sys
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -32,8 +32,9 @@ from controllers.feedback import FEEDBACK_KINDS, make_feedback
 from controllers.loop import run_torque_loop
 from controllers.pi import PITorqueController
 from controllers.tracking import TrackingError, tracking_error
-from experiments.common import (add_experiment_args, feedback_kinds, format_rows, load_params_arg,
-                                loadcell_torque_nm, paper_row, record_rerun, write_outputs)
+from experiments.common import (add_experiment_args, cli_parser, feedback_kinds, format_rows, load_params_arg,
+                                loadcell_torque_nm, paper_row, record_rerun, run_errors, short_run_banner,
+                                write_outputs)
 from sim.figures import save_figure
 from sim.motor_torque import CurrentToTorqueMap
 from sim.params import TestbedParams
@@ -83,13 +84,15 @@ class SinusoidCase:
     feedback: str
     error: TrackingError
     positive_share: float
+    output_level: float
     paper_rms_nm: float
     paper_peak_nm: float
     log: RunLog | None = field(default=None, repr=False, compare=False)
 
     def to_dict(self) -> dict:
         return {"waveform": self.waveform.name, "feedback": self.feedback, "error": self.error.to_dict(),
-                "positive_share": self.positive_share, "paper_rms_nm": self.paper_rms_nm,
+                "positive_share": self.positive_share, "output_level": self.output_level,
+                "paper_rms_nm": self.paper_rms_nm,
                 "paper_peak_nm": self.paper_peak_nm}
 
 
@@ -142,8 +145,9 @@ def run_sinusoid_case(params: TestbedParams, feedback: str, waveform: Waveform, 
     output = loadcell_torque_nm(log, seed)[n_warmup:]
     reference = reference[n_warmup:]
     positive_share = float(np.clip(output, 0.0, None).sum() / max(np.abs(output).sum(), 1e-300))
+    output_level = float(np.abs(output).mean() / max(np.abs(reference).mean(), 1e-300))
     paper_rms, paper_peak = PAPER_ERRORS_NM[(feedback, waveform.name)]
-    return SinusoidCase(waveform, feedback, tracking_error(output, reference), positive_share,
+    return SinusoidCase(waveform, feedback, tracking_error(output, reference), positive_share, output_level,
                         paper_rms, paper_peak, log=log)
 
 
@@ -182,23 +186,26 @@ def plot_sinusoid(result: SinusoidResult, directory: Path) -> Path:
                ylabel="torque [N·m]")
         ax.title.set_fontsize(7)
         ax.legend(fontsize=6)
-    fig.suptitle("Sine and square tracking, locked lever (paper Fig. sinwave, Table VII)", fontsize=9)
+    fig.suptitle("Sine and square tracking, locked lever (paper Fig. 12, Table VII)", fontsize=9)
     return save_figure(fig, directory, "sinusoid.png")
 
 
 def main(argv: list[str] | None = None) -> None:
-    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    parser = cli_parser(__doc__, __spec__.name)
     add_experiment_args(parser)
     args = parser.parse_args(argv)
     params = load_params_arg(parser, args)
     print("running the sine and square tests (progress on stderr) ...", file=sys.stderr)
-    result = run_sinusoid(params, feedback_kinds(args.feedback), args.seed, args.duration, progress=True)
+    with run_errors(parser):
+        result = run_sinusoid(params, feedback_kinds(args.feedback), args.seed, args.duration, progress=True)
+    short_run_banner(args)
     print(format_rows("Sine and square tracking, locked lever: load-cell torque vs reference (Table VII)",
                       result.rows()))
+    print("one-sided actuation (the paper reports it at low torque under current feedback): positive share of "
+          "the output's impulse (0.5 = symmetric), mean |output| / mean |reference| (about 1 when tracking)")
     for c in result.cases:
-        print(f"  {c.waveform.name}, {c.feedback}: positive share of the output's impulse "
-              f"{c.positive_share:.2f} (0.5 = symmetric; the paper reports one-sided actuation at low torque "
-              f"under current feedback)")
+        print(f"  {c.waveform.name}, {c.feedback}: positive share {c.positive_share:.2f}, "
+              f"level {c.output_level:.2f}")
     write_outputs(args, result.to_dict(), lambda directory: plot_sinusoid(result, directory))
     record_rerun(args, result.logs(), params)
 

@@ -43,7 +43,6 @@ raises Kp. With a single noise realisation per task the optimum is specific to i
 
 from __future__ import annotations
 
-import argparse
 import functools
 import math
 import sys
@@ -56,7 +55,8 @@ from scipy.optimize import minimize
 from controllers.pi import PAPER_KI_PER_S, PAPER_KP, PITorqueController
 from controllers.tracking import tracking_error
 from envs.torque_tracking import OBSERVATION_NAMES, TorqueTrackingEnv
-from experiments.common import add_experiment_args, load_params_arg, record_rerun, write_outputs
+from experiments.common import (add_experiment_args, cli_parser, load_params_arg, positive_int, record_rerun,
+                                run_errors, short_run_banner, write_outputs)
 from sim.figures import save_figure
 from sim.motor_torque import CurrentToTorqueMap
 from sim.params import TestbedParams
@@ -328,11 +328,11 @@ def plot_tune(result: TuneResult, directory: Path) -> Path:
 
 
 def main(argv: list[str] | None = None) -> None:
-    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    parser = cli_parser(__doc__, __spec__.name)
     parser.add_argument("--feedback", choices=tuple(FEEDBACK_OBSERVATION), default="sensor",
                         help="measured torque the PI closes on (default sensor)")
     parser.add_argument("--damping", action="store_true", help="also tune a velocity-damping gain K_d")
-    parser.add_argument("--max-evaluations", type=int, default=DEFAULT_MAX_EVALUATIONS, metavar="N",
+    parser.add_argument("--max-evaluations", type=positive_int, default=DEFAULT_MAX_EVALUATIONS, metavar="N",
                         help=f"evaluations of the objective (default {DEFAULT_MAX_EVALUATIONS})")
     parser.add_argument("--gain-margin", type=float, default=DEFAULT_GAIN_MARGIN, metavar="M",
                         help=f"the tuned gains x M must still track every task as well as the paper's "
@@ -340,14 +340,14 @@ def main(argv: list[str] | None = None) -> None:
     add_experiment_args(parser, feedback=False)
     args = parser.parse_args(argv)
     params = load_params_arg(parser, args)
-    if args.max_evaluations < 1:
-        parser.error(f"--max-evaluations {args.max_evaluations}: must be >= 1")
     if not (math.isfinite(args.gain_margin) and args.gain_margin >= 1):
         parser.error(f"--gain-margin {args.gain_margin}: must be >= 1")
     duration = DEFAULT_DURATION_S if args.duration is None else args.duration
     print(f"tuning on {len(TUNE_TASKS)} tasks x {duration:g} s (progress on stderr) ...", file=sys.stderr)
-    result = tune(params, args.feedback, args.damping, duration, args.max_evaluations, args.seed, progress=True,
-                  gain_margin=args.gain_margin)
+    with run_errors(parser):
+        result = tune(params, args.feedback, args.damping, duration, args.max_evaluations, args.seed, progress=True,
+                      gain_margin=args.gain_margin)
+    short_run_banner(args)
     print(format_result(result))
     write_outputs(args, result.to_dict(), lambda directory: plot_tune(result, directory))
     record_rerun(args, lambda: tune_logs(result, params), params)

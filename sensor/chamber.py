@@ -24,7 +24,7 @@ CHAMBER_SETPOINTS_C = (-10.0, 0.0, 10.0, 20.0, 30.0, 40.0, 50.0)
 CHAMBER_HOLD_S = 20 * 60.0
 CHAMBER_LOG_PERIOD_S = 1.0  # assumed: one logged sample per second is ample for minutes-long transients
 # Paper Table V: one-hour drift at 0 and 10 N·m; a maximum temperature change of 1 °C (Sec. IV-C).
-# The sensor sits alone in the chamber (Fig. 10(a)): no motor attached, and the chamber's fan forces the air.
+# The sensor sits alone in the chamber (Fig. 9(a)): no motor attached, and the chamber's fan forces the air.
 CHAMBER_BOARD_TO_AIR_K_PER_W = 1.5  # assumed: forced convection h ≈ 35 W/(m²·K) over ~0.018 m² of surface
 NO_CONDUCTION_K_PER_W = 1e9  # a thermal resistance standing for "no path" (the motor is not attached)
 DRIFT_TEST_S = 3600.0

@@ -21,7 +21,7 @@ crosstalk              ``max |tau_hat|`` under an applied T_x (T_y) moment / FS 
 
 What the paper leaves open, and the choice made here
 -----------------------------------------------------
-* **Branches.** Fig. 8(a) speaks of "upper- and lower-bound" curves of loading/unloading. Here a
+* **Branches.** Fig. 7(a) speaks of "upper- and lower-bound" curves of loading/unloading. Here a
   sample belongs to the *ascending* branch when the reference torque was last moving up and to the
   *descending* branch when it was last moving down (:func:`reference_direction`, with a dead band
   against reference noise and holds). For a loop that does not cross itself these are the lower and
@@ -369,7 +369,7 @@ def _sensitivity(t: np.ndarray, r: np.ndarray, d: np.ndarray) -> float:
 
 @dataclass(frozen=True, eq=False)
 class NonlinearityResult:
-    """Nonlinearity (Table III, Fig. 8(a)-(c)).
+    """Nonlinearity (Table III, Fig. 7(a)-(c)).
 
     Attributes
     ----------
@@ -384,7 +384,7 @@ class NonlinearityResult:
     offset_nm : float
         Its intercept [N m].
     level_nm, deviation_nm : numpy.ndarray, shape (M',)
-        The deviation curve (Fig. 8(c)) on the bins holding both branches.
+        The deviation curve (Fig. 7(c)) on the bins holding both branches.
     fs_nm : float
     """
 
@@ -425,7 +425,7 @@ def nonlinearity(tau_ref: np.ndarray, tau_hat: np.ndarray, direction: np.ndarray
 
 @dataclass(frozen=True, eq=False)
 class HysteresisResult:
-    """Hysteresis (Table III, Fig. 8(d)).
+    """Hysteresis (Table III, Fig. 7(d)).
 
     Attributes
     ----------
@@ -616,7 +616,7 @@ def crosstalk(tau_hat: np.ndarray, *, tau_z_ref: np.ndarray | None = None,
 
 @dataclass(frozen=True)
 class ResolutionResult:
-    """3-sigma resolution (Sec. IV-B, Fig. 9(e)-(f)).
+    """3-sigma resolution (Sec. IV-B, Fig. 8(e)-(f)).
 
     Attributes
     ----------

@@ -1,4 +1,4 @@
-"""The calibration rig of the paper (Sec. IV-A, Figs. 9-11), simulated: schedules of applied moments and the
+"""The calibration rig of the paper (Sec. IV-A, Figs. 5, 6 and 8(a)-(b)), simulated: schedules of applied moments and the
 records they produce (sensor channel voltages beside the ATI MINI85 reference).
 
 The sensor is bolted to the reference sensor and loaded with test weights on a lever: the loading is

@@ -613,7 +613,7 @@ def _check_samples(columns: dict[str, np.ndarray], *, max_jitter: float) -> None
     if len(back):
         i = int(back[0])
         now, before = float(time[i]), float(time[i - 1])
-        raise LogError(f"column 'time', row {row_of(i)}: {now!r} s does not exceed {before!r} s of row "
+        raise LogError(f"column 'time', row {row_of(i)}: {now:.9g} s does not exceed {before:.9g} s of row "
                        f"{row_of(i - 1)}; time must increase strictly ({len(back)} such row(s): {_rows(back)})",
                        column="time", row=row_of(i))
     if math.isinf(max_jitter):

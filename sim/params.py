@@ -40,8 +40,13 @@ class MotorParams:
         8.0, "1", "assumed: GIM8108-8 variant (SteadyWin names the planetary ratio in the suffix); the 8:1 "
         "model is the one rated 18 N·m peak as the paper states (Sec. II)", 1.0, 200.0)
     rotor_inertia_kgm2: float = quantity(
-        1.0e-4, "kg·m²", "assumed: thin-rim estimate m·r² of an 81 mm outrunner rotor (can + magnets "
-        "~0.075 kg at mean radius ~0.036 m); not in the paper or the vendor's sheet", 0.0, 1.0, low_open=True)
+        1.0e-4, "kg·m²", "assumed: thin-rim estimate m·r² of an 81 mm outrunner rotor (can + magnets ~0.075 kg at "
+        "mean radius ~0.036 m), an upper bound; not in the paper or the vendor's sheet. The MIT Mini Cheetah's "
+        "rotor, the 81 mm, 21-pole-pair design the GIM actuators follow, is 6.3e-5 from CAD "
+        "(mit-biomimetics/Cheetah-Software, MiniCheetah.h). Not adopted (2026-11-25): at 6.3e-5 the presliding "
+        "accuracy rule (simulation.max_step_per_bristle_time, σ1 ∝ sqrt(J)) needs 20 physics steps per ms "
+        "instead of 16, 25 % slower, for no figure of Tables VI-VII into the band (RMS |ln ratio| 0.415-0.436 "
+        "against 0.438-0.453 over seeds 0-3; docs/issue4_figures.md, Session 15)", 0.0, 1.0, low_open=True)
     rotor_mass_kg: float = quantity(
         0.075, "kg", "assumed: can + magnets of an 81 mm outrunner, the mass of the thin-rim estimate",
         0.0, 10.0, low_open=True)
@@ -251,7 +256,7 @@ class PhotoReflectorParams:
     slip_twist_max_rad: float = quantity(
         0.0103, "rad", "assumed: largest breakaway twist of the Maxwell-slip elements of the target's bolted "
         "joint, half the ±25 N·m calibration span at K_t (12.5 N·m), so loops over the calibration protocol "
-        "close at their turning points and open gradually after a reversal (Fig. 8(d) shows no step)", 0.0, 0.1, low_open=True)
+        "close at their turning points and open gradually after a reversal (Fig. 7(d) shows no step)", 0.0, 0.1, low_open=True)
     slip_fraction_min: float = quantity(
         0.0055, "1", "tuned: smallest fraction of the twist a channel sees through the slipping joint; the paper's "
         "hysteresis is 0.139 % FS (Table III)", 0.0, 1.0)
@@ -364,8 +369,9 @@ def _validate_group(name: str, obj: Any) -> None:
         below = value <= low if md["low_open"] else value < low
         if not math.isfinite(value) or below or value > high:
             bracket = "(" if md["low_open"] else "["
-            raise ParameterError(f"{name}.{f.name} = {value!r} {md['unit']} is out of its valid range "
-                                 f"{bracket}{low:g}, {high:g}]")
+            unit = "" if md["unit"] == "1" else f" {md['unit']}"  # "1": dimensionless
+            raise ParameterError(f"{name}.{f.name} = {value!r}{unit} is out of its valid range "
+                                 f"{bracket}{low:g}, {high:g}]{unit}")
 
 
 def _validate_cross(p: TestbedParams) -> None:
@@ -441,6 +447,11 @@ def load_params(path: str | Path | None = None) -> TestbedParams:
         raise ParameterError(f"parameter file {path} does not exist") from None
     except tomllib.TOMLDecodeError as exc:
         raise ParameterError(f"parameter file {path} is not valid TOML: {exc}") from None
+    except UnicodeDecodeError as exc:
+        raise ParameterError(f"parameter file {path} is not UTF-8 text (TOML): {exc.reason} at byte "
+                             f"{exc.start}") from None
+    except OSError as exc:
+        raise ParameterError(f"parameter file {path} cannot be read: {exc.strerror or exc}") from None
     try:
         return from_dict(data)
     except ParameterError as exc:

@@ -58,3 +58,10 @@ def test_open_loop_step_refuses_a_non_positive_duration():
     """--duration 0 is a usage error naming the flag."""
     result = run("experiments.open_loop_step", "--duration", "0")
     assert result.returncode == 2 and "--duration" in result.stderr
+
+
+@pytest.mark.parametrize("step", ["0", "100", "nan"])
+def test_open_loop_step_refuses_a_step_of_zero_or_beyond_the_driver_limit(step):
+    """A zero step, one the driver would clip (±26.3 N·m) or a non-number is a usage error with the valid range."""
+    result = run("experiments.open_loop_step", "--steps", step)
+    assert result.returncode == 2 and "valid steps are non-zero, within the driver's command limit" in result.stderr

@@ -17,7 +17,7 @@ RECOVERY_RTOL = 1e-6
 T_C = np.linspace(-10.0, 50.0, 121)
 
 # Eq. 20 constants with a denominator that stays positive on [-10, 50] degC (min 0.96 at -10 degC)
-# and a drift of a few 0.01 N m, the size of the paper's Fig. 10(b).
+# and a drift of a few 0.01 N m, the size of the paper's Fig. 9(b).
 A_TRUE = np.array([-2e-5, 1.5e-3, -0.02, 1e-4, 5e-3])
 
 

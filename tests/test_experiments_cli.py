@@ -51,11 +51,40 @@ def test_admittance_short_mode_reports_both_pushes(tmp_path):
 
 
 @pytest.mark.parametrize("args,message", [(("--duration", "0"), "--duration"),
+                                          (("--duration", "1e-4"), "valid range [0.01, 3600] s"),
+                                          (("--duration", "1e7"), "valid range [0.01, 3600] s"),
+                                          (("--duration", "abc"), "'abc' is not a number of seconds"),
+                                          (("--seed", "-1"), "valid seeds are integers >= 0"),
                                           (("--feedback", "torque"), "--feedback")])
 def test_bad_flags_are_usage_errors_naming_the_flag(args, message):
-    """A non-positive duration or an unknown feedback exits with status 2 and names the flag."""
+    """A duration outside [10 ms, 1 h], a negative seed or an unknown feedback exits with status 2, names the flag
+    and its valid range, before anything runs."""
     result = run("experiments.step", *args)
-    assert result.returncode == 2 and message in result.stderr
+    assert result.returncode == 2 and message in result.stderr and "Traceback" not in result.stderr
+
+
+def test_outputs_that_would_overwrite_an_input_or_cannot_be_written_are_refused_before_the_run(tmp_path):
+    """--json naming the --params file, or a directory; --plot naming a file: usage errors, the input untouched."""
+    params = tmp_path / "rig.toml"
+    params.write_text("[friction]\nbreakaway_torque_nm = 0.14\n")
+    a_file = tmp_path / "note.txt"
+    a_file.write_text("keep")
+    for args, message in [(("--params", str(params), "--json", str(params)), "is an input of this run"),
+                          (("--json", str(tmp_path)), "is a directory"),
+                          (("--plot", str(a_file)), "exists and is not a directory")]:
+        result = run("experiments.step", "--duration", "0.05", *args)
+        assert result.returncode == 2 and message in result.stderr, result.stderr
+        assert "running" not in result.stderr  # refused before the simulation started
+    assert params.read_text() == "[friction]\nbreakaway_torque_nm = 0.14\n" and a_file.read_text() == "keep"
+
+
+def test_a_parameter_set_the_model_cannot_be_built_from_is_a_usage_error_naming_the_field(tmp_path):
+    """A gear ratio whose physics step outgrows the backlash stops' time constant names that field and its range."""
+    params = tmp_path / "rig.toml"
+    params.write_text("[motor]\ngear_ratio = 36\n")
+    result = run("experiments.step", "--duration", "0.05", "--params", str(params))
+    assert result.returncode == 2 and "Traceback" not in result.stderr
+    assert "backlash.stop_time_constant_s = 0.000125 s is below two physics steps; valid range" in result.stderr
 
 
 @pytest.mark.parametrize("module,what", [("experiments.discrepancy", "replay"),

@@ -40,7 +40,7 @@ def test_toml_override_applies_and_leaves_the_file_untouched(tmp_path):
     ("[friction]\npresliding_stiffness_nm_per_rad = -10.0\n", "valid range (0, inf]"),
     ("[motor]\nrotor_inertia_kgm2 = 0\n", "motor.rotor_inertia_kgm2 = 0.0 kg·m² is out of its valid range (0, 1]"),
     ("[photoreflector]\nreference_gain_error = 0.02\n",
-     "photoreflector.reference_gain_error = 0.02 1 is out of its valid range [-0.01, 0.01]"),
+     "photoreflector.reference_gain_error = 0.02 is out of its valid range [-0.01, 0.01]"),
     ("[friction]\nbreakaway_torque_nm = 25.0\n", "larger than the motor can overcome"),
     ("[friction]\ncoulomb_torque_nm = 0.2\n", "must not exceed friction.breakaway_torque_nm"),
     ("[flexure]\nbeam_length_m = 0.04\n", "r_i + l must stay inside"),

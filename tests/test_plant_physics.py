@@ -153,20 +153,29 @@ def test_backlash_stop_penetrates_less_than_10_percent_of_the_gap_at_full_torque
 
 def test_load_dependent_friction_grows_with_transmitted_torque():
     """The gear joint's frictionloss is (1-η)·|τ| after a tick transmitting τ, on top of the LuGre levels."""
-    plant = Plant(P, "locked")
-    hold(plant, 10.0, 0.3)
-    loss = plant.model.dof_frictionloss[plant.model.joint("motor").dofadr[0]]
-    assert loss == pytest.approx(P.friction.load_friction_coefficient * abs(plant.flexure_torque_nm), rel=0.01)
-    assert loss > 5 * P.friction.coulomb_torque_nm
+    losses = []
+    for command_nm in (2.0, 5.0, 10.0):
+        plant = Plant(P, "locked")
+        hold(plant, command_nm, 0.3)
+        loss = plant.model.dof_frictionloss[plant.model.joint("motor").dofadr[0]]
+        assert loss == pytest.approx(P.friction.load_friction_coefficient * abs(plant.flexure_torque_nm), rel=0.01)
+        losses.append(loss)
+    assert losses[0] < losses[1] < losses[2]
+    assert losses[2] > 3 * losses[0]
 
 
-def test_load_friction_holds_a_torque_difference_without_creep():
-    """Stuck under 10 N·m, lowering the command by less than the load friction leaves the gear in place."""
+@pytest.mark.parametrize("share, moves", [(0.5, False), (1.5, True)])
+def test_load_friction_holds_a_torque_difference_below_its_level_and_slips_above(share, moves):
+    """Stuck under 10 N·m, a command that differs from the held flexure torque by less than the gear's holding
+    torque (breakaway + (1-η)·|τ|) leaves the gear in place without creep; by more, the gear slips."""
     plant = Plant(P_LINEAR_MOTOR, "locked")
     hold(plant, 10.0, 0.5)
+    held_nm = plant.flexure_torque_nm
+    holding_nm = P.friction.breakaway_torque_nm + P.friction.load_friction_coefficient * abs(held_nm)
     start = plant.motor_angle_rad
-    hold(plant, 9.7, 1.0)  # 0.3 N·m below: less than breakaway + (1-η)·10 N·m
-    assert abs(plant.motor_angle_rad - start) < 1e-6
+    hold(plant, held_nm - share * holding_nm, 1.0)
+    moved = abs(plant.motor_angle_rad - start)
+    assert (moved > 1e-5) if moves else (moved < 1e-6), moved
 
 
 def test_current_estimate_follows_the_command_with_the_current_loop_lag():
@@ -227,3 +236,25 @@ def test_copper_loss_is_that_of_the_current_the_driver_commands():
     reference.advance(2.0, P.motor.winding_resistance_ohm * current_a**2)
     rise = plant.thermal.temperatures_c[1] - ambient[1]
     assert rise == pytest.approx(reference.temperatures_c[1] - ambient[1], rel=0.01)
+
+
+@pytest.mark.parametrize("delay_s", [5e-4, 3.2e-3])
+def test_past_commands_prime_the_driver_as_if_it_had_been_running(delay_s):
+    """After hold_commands(past) a plant put in another's state delivers what the one that ran those commands
+    delivers, from its first tick: the delay buffer holds the past ticks' commands (a ramp, and a delay of several
+    ticks) and the current loop sits where they left it (no silent first milliseconds, no current rise)."""
+    p = P.replace(motor={"command_delay_s": delay_s})
+    ramp = np.linspace(2.0, 6.0, 50)
+    running = Plant(p, "locked")
+    for u in ramp:
+        running.step(u)
+    primed = Plant(p, "locked")
+    primed.data.qpos[:] = running.data.qpos
+    primed.data.qvel[:] = running.data.qvel
+    primed.data.act[:] = running.data.act
+    primed.hold_commands(ramp)
+    for u in (6.1, 6.2, 6.3, 6.4, 6.5):
+        running.step(u)
+        primed.step(u)
+        assert primed.flexure_torque_nm == pytest.approx(running.flexure_torque_nm, rel=1e-4)
+        assert primed.current_torque_estimate_nm == pytest.approx(running.current_torque_estimate_nm, rel=1e-3)

@@ -33,7 +33,9 @@ def build_xml(p: TestbedParams, fixture: str) -> str:
                         ("friction.load_friction_time_constant_s", p.friction.load_friction_time_constant_s)):
         if value < 2.0 * h * (1.0 - 1e-9):
             raise ParameterError(f"{name} = {value} s is below two physics steps; valid range "
-                                 f"[{2.0 * h:.3g}, 1] s for h = {h:.3g} s")
+                                 f"[{2.0 * h:.3g}, 1] s for the physics step h = {h:.3g} s that these "
+                                 f"parameters need (models.gim8108_testbed.derived.physics_timestep: the "
+                                 f"stiffest mode of the drivetrain and the presliding time set it)")
     n = p.motor.gear_ratio
     fr, fl, lever = p.friction, p.flexure, p.lever
     locked = fixture == "locked"

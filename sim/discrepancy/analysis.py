@@ -157,7 +157,8 @@ def analyse(log: RunLog, rig: Rig, config: AnalysisConfig | None = None, *, prog
     scales = {c: _rms(r[data.fit]) or 1.0 for c, r in residuals_baseline.items()}
     before = held_out_score(surrogate, theta)
     timings["baseline_fit_s"] = time.perf_counter() - t
-    _progress(f"baseline held-out RMSE {before.rmse} ({len(log)} samples, split at {data.split_time:.3f} s)",
+    rmse = ", ".join(f"{c} {value:.4g} {channel_unit(c, rig.joint)}" for c, value in before.rmse.items())
+    _progress(f"baseline held-out RMSE: {rmse} ({len(log)} samples, split at {data.split_time:.3f} s)",
               progress)
 
     # 3. diagnostics and identifiability

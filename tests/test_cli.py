@@ -60,6 +60,22 @@ def test_open_loop_step_refuses_a_non_positive_duration():
     assert result.returncode == 2 and "--duration" in result.stderr
 
 
+def test_discrepancy_demo_writes_a_log_whose_hidden_effect_the_analysis_names(tmp_path):
+    """experiments.discrepancy_demo: a log and its baseline rig; the analysis of the pair names the hidden effect
+    first and recovers its value within the sweep's 5 %; a second demo into the same place is refused."""
+    demo = run("experiments.discrepancy_demo", "--effect", "coulomb_friction", "--duration", "6", "--out",
+               str(tmp_path))
+    assert demo.returncode == 0, demo.stderr
+    hidden = float(demo.stdout.split("coulomb = ")[1].split()[0])
+    result = run("experiments.discrepancy", str(tmp_path / "demo_log.csv"), "--rig", str(tmp_path / "demo_rig.toml"),
+                 "--no-replay")
+    assert result.returncode == 0, result.stderr
+    found = result.stdout.split("1. coulomb_friction: coulomb = ")[1].split()[0]
+    assert float(found) == pytest.approx(hidden, rel=0.05)
+    again = run("experiments.discrepancy_demo", "--out", str(tmp_path))
+    assert again.returncode == 2 and "exists" in again.stderr
+
+
 @pytest.mark.parametrize("step", ["0", "100", "nan"])
 def test_open_loop_step_refuses_a_step_of_zero_or_beyond_the_driver_limit(step):
     """A zero step, one the driver would clip (±26.3 N·m) or a non-number is a usage error with the valid range."""

@@ -14,6 +14,7 @@ from sim.discrepancy.synth import (
     EXPERIMENTS,
     FINE_MOTOR_ENCODER_COUNTS,
     GRID_BEST_OVERRIDES,
+    REVEALING_EXPERIMENT,
     hidden_effect_log,
     random_baseline_overrides,
 )
@@ -22,25 +23,26 @@ SEEDS = (21, 22, 23)
 DURATION_S = 10.0
 TIGHT = 0.05  # relative error of parameters the experiment excites well
 
-# effect -> (experiment, {parameter: (tolerance, 'relative' | 'absolute')})
-CASES = {
-    "coulomb_friction": ("free", {"coulomb": (TIGHT, "relative")}),
-    "viscous_friction": ("free", {"viscous": (TIGHT, "relative")}),
+# effect -> {parameter: (tolerance, 'relative' | 'absolute')}
+TOLERANCES = {
+    "coulomb_friction": {"coulomb": (TIGHT, "relative")},
+    "viscous_friction": {"viscous": (TIGHT, "relative")},
     # F_s and v_s trade off along the low-speed curve (measured errors 35 % on F_s at 8 s): a 50 % tolerance
-    "stribeck_friction": ("free", {"breakaway": (0.5, "relative"), "stribeck_velocity": (0.5, "relative")}),
-    "asymmetric_friction": ("free", {"asymmetry": (TIGHT, "relative")}),
-    "load_dependent_friction": ("locked", {"load_coefficient": (TIGHT, "relative")}),
-    "backlash": ("locked", {"backlash_width": (TIGHT, "relative")}),
-    "cogging": ("free", {"cogging_amplitude": (TIGHT, "relative"), "cogging_period": (1e-9, "relative")}),
-    "torque_constant_nonlinearity": ("locked", {"torque_rolloff": (0.1, "relative")}),  # 10 %: one swing of ±8 N·m
-    "transport_delay": ("free", {"delay": (3e-4, "absolute")}),  # [s], a third of a sample
-    "gravity": ("free", {"gravity_amplitude": (TIGHT, "relative"), "gravity_angle": (0.1, "absolute")}),
-    "sensor_offset": ("locked", {"sensor_offset": (TIGHT, "relative")}),
-    "sensor_gain": ("locked", {"sensor_gain": (0.005, "absolute")}),  # [1]: the drawn errors are 2-5 %
-    "sensor_thermal_drift": ("locked", {"sensor_tempco": (TIGHT, "relative")}),
-    "sensor_hysteresis": ("locked", {"sensor_hysteresis": (0.1, "relative"),
-                                     "sensor_hysteresis_span": (0.1, "relative")}),
+    "stribeck_friction": {"breakaway": (0.5, "relative"), "stribeck_velocity": (0.5, "relative")},
+    "asymmetric_friction": {"asymmetry": (TIGHT, "relative")},
+    "load_dependent_friction": {"load_coefficient": (TIGHT, "relative")},
+    "backlash": {"backlash_width": (TIGHT, "relative")},
+    "cogging": {"cogging_amplitude": (TIGHT, "relative"), "cogging_period": (1e-9, "relative")},
+    "torque_constant_nonlinearity": {"torque_rolloff": (0.1, "relative")},  # 10 %: one swing of ±8 N·m
+    "transport_delay": {"delay": (3e-4, "absolute")},  # [s], a third of a sample
+    "gravity": {"gravity_amplitude": (TIGHT, "relative"), "gravity_angle": (0.1, "absolute")},
+    "sensor_offset": {"sensor_offset": (TIGHT, "relative")},
+    "sensor_gain": {"sensor_gain": (0.005, "absolute")},  # [1]: the drawn errors are 2-5 %
+    "sensor_thermal_drift": {"sensor_tempco": (TIGHT, "relative")},
+    "sensor_hysteresis": {"sensor_hysteresis": (0.1, "relative"), "sensor_hysteresis_span": (0.1, "relative")},
 }
+# effect -> (experiment that reveals it, its tolerances)
+CASES = {effect: (REVEALING_EXPERIMENT[effect], tol) for effect, tol in TOLERANCES.items()}
 SLIDE_CASES = {
     "coulomb_friction": {"coulomb": (TIGHT, "relative")},
     "gravity": {"gravity_amplitude": (TIGHT, "relative")},

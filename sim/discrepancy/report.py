@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 from pathlib import Path
 
 import numpy as np
@@ -21,8 +22,11 @@ def format_result(result: DiscrepancyResult) -> str:
     for key, entry in b["free_parameters"].items():
         lines.append(f"  re-fitted baseline {key}: {entry['value']:.6g} (rig {entry['rig']:.6g})")
     lines.append("Baseline held-out RMSE: " + ", ".join(
-        f"{c} {v:.4g} {result.units[c]}" for c, v in b["rmse_heldout"].items()))
-    lines.append("Strongest signatures in the baseline residual (held-out correlation):")
+        f"{c} {v:.4g} {result.units[c]}" if math.isfinite(v) else f"{c} n/a (no sample counts)"
+        for c, v in b["rmse_heldout"].items()))
+    lines.append("Strongest signatures in the baseline residual (held-out correlation; a shape the residual "
+                 "resembles is a candidate, a finding needs the significance rule: held-out gain, ΔBIC, "
+                 "consistency):")
     for s in b["signatures"][:SIGNATURES_SHOWN]:
         lines.append(f"  {s['channel']:>9s}  {s['signature']:<36s} {s['correlation']:+.3f}")
     if result.findings:

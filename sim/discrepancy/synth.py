@@ -62,6 +62,15 @@ PI_REFERENCE = ((4.0, 0.25), (0.6, 2.3))  # torque reference of the closed-loop 
 PI_BIAS_NM = 0.5
 
 EXPERIMENTS = ("locked", "free", "locked_pi_sensor", "locked_pi_current", "slide")
+# The experiment whose log reveals each effect (docs/discrepancy.md, "Effects and the experiments that reveal
+# them"; the hidden-effect sweep recovers each from it). Presliding also needs a fine motor encoder.
+REVEALING_EXPERIMENT = {
+    "coulomb_friction": "free", "viscous_friction": "free", "stribeck_friction": "free",
+    "asymmetric_friction": "free", "load_dependent_friction": "locked", "presliding_friction": "locked_pi_current",
+    "backlash": "locked", "cogging": "free", "torque_constant_nonlinearity": "locked", "transport_delay": "free",
+    "gravity": "free", "sensor_offset": "locked", "sensor_gain": "locked", "sensor_thermal_drift": "locked",
+    "sensor_hysteresis": "locked",
+}
 
 BASELINE_SLIDE_RIG = {"model": "rigid-joint", "joint": "slide", "mass_kg": 2.0, "effort_gain": 1.0,
                       "peak_effort": 100.0, "friction": {"coulomb": 3.0, "viscous": 8.0}}

@@ -18,7 +18,7 @@ from typing import Any
 
 from experiments.common import (add_params_arg, add_rerun_args, load_params_arg, record_rerun, rerun_requested,
                                 write_outputs)
-from models.gim8108_testbed.derived import FIXTURES, derive, lumped_modes_hz, physics_timestep
+from models.gim8108_testbed.derived import FIXTURES, derive, lumped_modes_hz, physics_timestep, substeps_by_rule
 from sim.characterize import linearizable_plant, linearized_modes, measure_backlash, measure_breakaway
 from sim.figures import save_figure
 from sim.motor_torque import CurrentToTorqueMap
@@ -89,6 +89,8 @@ def run_plant_card(params: TestbedParams | None = None, *, keep_logs: bool = Fal
         h, n = physics_timestep(p, fixture)
         put(f"physics_timestep_{fixture}", h, "s")
         put(f"substeps_{fixture}", n, "1")
+        for rule, needed in substeps_by_rule(p, fixture).items():  # which rule sets the step (and the speed)
+            put(f"substeps_{fixture}_{rule}_rule", needed, "1")
         closed = fixture == "locked"
         lumped = [f for f in lumped_modes_hz(p, fixture, closed, True) if f > 0]
         for i, f in enumerate(lumped):

@@ -32,6 +32,9 @@ def test_plant_card_prints_the_tables_and_writes_the_json(tmp_path):
     # the command that delivers the peak through τ = c/(1 + α|c|), solved by hand: 18/(1 - 18α) = 26.3 N·m
     limit = motor["peak_torque_nm"] / (1.0 - motor["torque_saturation_per_nm"] * motor["peak_torque_nm"])
     assert card["derived"]["driver_command_limit"] == {"value": pytest.approx(limit, rel=1e-12), "unit": "N·m"}
+    for fixture in ("locked", "free"):  # the substeps are what the stricter of the rule's two parts asks for
+        rules = [card["derived"][f"substeps_{fixture}_{rule}_rule"]["value"] for rule in ("modes", "presliding")]
+        assert card["derived"][f"substeps_{fixture}"]["value"] == max(rules)
 
 
 def test_plant_card_rejects_a_bad_parameter_file_naming_the_field(tmp_path):

@@ -159,6 +159,16 @@ def stiffest_mode_rad_s(p: TestbedParams, fixture: str) -> float:
                                for closed in (True, False) for stuck in (True, False))
 
 
+def substeps_by_rule(p: TestbedParams, fixture: str) -> dict[str, int]:
+    """Physics steps per control tick each part of the rule asks for (see :func:`physics_timestep`):
+    ``modes`` (1) and ``presliding`` (2). σ1 = 2ζ·sqrt(σ0·J) makes (2) grow as the reflected inertia falls."""
+    s = p.simulation
+    t_ctrl = s.control_period_s
+    bristle_time_s = derive(p).presliding_damping_nms_per_rad / p.friction.presliding_stiffness_nm_per_rad
+    return {"modes": math.ceil(t_ctrl * stiffest_mode_rad_s(p, fixture) / s.max_omega_dt),
+            "presliding": math.ceil(t_ctrl / (s.max_step_per_bristle_time * bristle_time_s))}
+
+
 def physics_timestep(p: TestbedParams, fixture: str) -> tuple[float, int]:
     """The physics step h [s] and substeps per control tick from the stated rule.
 
@@ -169,10 +179,5 @@ def physics_timestep(p: TestbedParams, fixture: str) -> tuple[float, int]:
           bristle state MuJoCo advances explicitly).
     The current loop is integrated exactly by MuJoCo (exponential update), so it does not bound h.
     """
-    s = p.simulation
-    t_ctrl = s.control_period_s
-    bristle_time_s = derive(p).presliding_damping_nms_per_rad / p.friction.presliding_stiffness_nm_per_rad
-    n_modes = math.ceil(t_ctrl * stiffest_mode_rad_s(p, fixture) / s.max_omega_dt)
-    n_bristle = math.ceil(t_ctrl / (s.max_step_per_bristle_time * bristle_time_s))
-    n = max(1, n_modes, n_bristle)
-    return t_ctrl / n, n
+    n = max(1, *substeps_by_rule(p, fixture).values())
+    return p.simulation.control_period_s / n, n

@@ -13,13 +13,15 @@ replaced.
 
 from __future__ import annotations
 
+import shlex
 import sys
 from pathlib import Path
 
 from experiments.common import cli_parser, run_seconds, seed_arg
-from sim.discrepancy.effects import EFFECTS
+from sim.discrepancy.effects import EFFECTS, TESTBED_ONLY
 from sim.discrepancy.rig import save_rig
-from sim.discrepancy.synth import EXPERIMENTS, REVEALING_EXPERIMENT, hidden_effect_log
+from sim.discrepancy.synth import (EXPERIMENTS, FINE_MOTOR_ENCODER_COUNTS, MOTOR_ENCODER_COUNTS, REVEALING_EXPERIMENT,
+                                   hidden_effect_log)
 from sim.logio import write_log
 
 DEFAULT_EFFECT = "coulomb_friction"
@@ -39,13 +41,26 @@ def main(argv: list[str] | None = None) -> None:
                         help="directory of demo_log.csv and demo_rig.toml (default out/)")
     args = parser.parse_args(argv)
     experiment = args.experiment or REVEALING_EXPERIMENT[args.effect]
+    spec = EFFECTS[args.effect]
+    if experiment == "slide" and (spec.rigs == TESTBED_ONLY or spec.channel == "sensor"):
+        parser.error(f"--effect {args.effect} needs the testbed (the slide has no gear, backlash or torque sensor); "
+                     f"its experiment is {REVEALING_EXPERIMENT[args.effect]!r}")
+    if experiment != REVEALING_EXPERIMENT[args.effect]:
+        print(f"note: {args.effect} is revealed by the {REVEALING_EXPERIMENT[args.effect]!r} experiment; from "
+              f"{experiment!r} the analysis may not name it or recover its value", file=sys.stderr)
+    # presliding needs an encoder that resolves the presliding displacement (docs/discrepancy.md)
+    encoder = FINE_MOTOR_ENCODER_COUNTS if args.effect == "presliding_friction" else MOTOR_ENCODER_COUNTS
     log_path, rig_path = args.out / "demo_log.csv", args.out / "demo_rig.toml"
     for path in (log_path, rig_path):
         if path.exists():
             parser.error(f"{path} exists; choose another --out (existing files are not replaced)")
     print(f"simulating {args.duration:g} s of the {experiment!r} experiment with {args.effect} hidden ...",
           file=sys.stderr)
-    log, rig, truth = hidden_effect_log(experiment, [args.effect], args.seed, args.duration)
+    try:
+        log, rig, truth = hidden_effect_log(experiment, [args.effect], args.seed, args.duration,
+                                            motor_encoder_counts=encoder)
+    except ValueError as exc:
+        parser.error(f"--effect {args.effect} on {experiment!r}: {exc}")
     args.out.mkdir(parents=True, exist_ok=True)
     write_log(log, log_path)
     save_rig(rig, rig_path, header=f"Baseline rig of {log_path.name}, written by experiments.discrepancy_demo "
@@ -54,7 +69,9 @@ def main(argv: list[str] | None = None) -> None:
     hidden = ", ".join(f"{k} = {v:.5g} {units.get(k, '')}".rstrip() for k, v in truth.effects[args.effect].items())
     print(f"wrote {log_path} and {rig_path}")
     print(f"hidden: {args.effect} ({hidden})")
-    print(f"analyse: python -m experiments.discrepancy {log_path} --rig {rig_path}")
+    if encoder != MOTOR_ENCODER_COUNTS:
+        print(f"the log's motor encoder has {encoder} counts per turn (the default's would not reveal it)")
+    print(f"analyse: python -m experiments.discrepancy {shlex.quote(str(log_path))} --rig {shlex.quote(str(rig_path))}")
 
 
 if __name__ == "__main__":

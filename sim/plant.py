@@ -22,6 +22,7 @@ from sim.thermal import ThermalState
 
 
 # Signals a run records every tick (see read_signals): name -> unit. Standard run-log names where they exist.
+CURRENT_PRIMING_TIME_CONSTANTS = 10  # hold_commands replays the current loop over this many time constants
 SIGNAL_UNITS: dict[str, str] = {
     "tau_cmd": "N·m",  # motor torque command, output side
     "q": "rad",  # absolute lever angle
@@ -138,18 +139,36 @@ class Plant:
 
     def hold_commands(self, past_commands_nm) -> None:
         """Put the driver in the state the commands of the past control ticks leave it in [N·m, output side,
-        oldest first; the last is the tick just before]: its delay buffer holding them and the armature current at
-        the value it tracks now. For a replay starting mid-log: a driver at rest would deliver nothing for its
-        first milliseconds (the delay, then the current loop's rise)."""
-        limit = self._command_limit_nm
-        ctrl = self._torque_map.delivered_nm(np.clip(np.asarray(past_commands_nm, dtype=float), -limit, limit))
-        ctrl = np.atleast_1d(ctrl) / self._gear  # as step() sets it
+        oldest first; the last is the tick just before]: its delay buffer holding them and the armature current
+        where the current loop has taken it. Call right after :meth:`reset` (the buffer's time stamps are then
+        ..., -2h, -h). For a replay starting mid-log: a driver at rest would deliver nothing for its first
+        milliseconds (the delay, then the current loop's rise)."""
+        past = np.atleast_1d(np.asarray(past_commands_nm, dtype=float))
+        if past.ndim != 1 or not len(past) or not np.all(np.isfinite(past)):
+            raise ValueError(f"past_commands_nm: a non-empty sequence of finite torques [N·m], "
+                             f"got {past_commands_nm!r}")
         m, d = self.model, self.data
+        if d.time != 0.0:
+            raise ValueError(f"hold_commands needs the time stamps of a reset; time = {d.time} s (call reset())")
+        limit = self._command_limit_nm
+        ctrl = self._torque_map.delivered_nm(np.clip(past, -limit, limit)) / self._gear  # as step() sets it
         prime_ctrl_history(m, d, self._u_motor, ctrl, self._tick_s)
-        tracked = ctrl[len(ctrl) - min(_ticks_back(self.params.motor.command_delay_s, self._tick_s), len(ctrl))]
+        # The current loop's exact first-order update over its last ~10 time constants of physics steps: the
+        # step that began j steps ago drove the current towards the command of (j·h + delay) ago.
+        h, tau_i = m.opt.timestep, self.params.motor.current_loop_time_constant_s
+        delay = float(m.actuator_delay[self._u_motor])
+        decay = math.exp(-h / tau_i)
+        steps = math.ceil(CURRENT_PRIMING_TIME_CONSTANTS * tau_i / h)
+
+        def command_aged(age_s: float) -> float:
+            return ctrl[len(ctrl) - min(_ticks_back(age_s, self._tick_s), len(ctrl))]
+
+        current = command_aged(steps * h + delay)
+        for j in range(steps, 0, -1):
+            current = command_aged(j * h + delay) + (current - command_aged(j * h + delay)) * decay
         d.ctrl[self._u_motor] = ctrl[-1]
-        d.act[self._act_current] = tracked / self.params.motor.torque_constant_nm_per_a
-        self._tau_cmd = float(np.asarray(past_commands_nm, dtype=float).ravel()[-1])
+        d.act[self._act_current] = current / self.params.motor.torque_constant_nm_per_a
+        self._tau_cmd = float(past[-1])
         mujoco.mj_forward(m, d)
 
     def _set_load_friction(self, load_nm: float) -> None:

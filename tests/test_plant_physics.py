@@ -238,7 +238,7 @@ def test_copper_loss_is_that_of_the_current_the_driver_commands():
     assert rise == pytest.approx(reference.temperatures_c[1] - ambient[1], rel=0.01)
 
 
-@pytest.mark.parametrize("delay_s", [5e-4, 3.2e-3])
+@pytest.mark.parametrize("delay_s", [5e-4, 9.375e-4, 1e-3, 2e-3, 3.2e-3])
 def test_past_commands_prime_the_driver_as_if_it_had_been_running(delay_s):
     """After hold_commands(past) a plant put in another's state delivers what the one that ran those commands
     delivers, from its first tick: the delay buffer holds the past ticks' commands (a ramp, and a delay of several
@@ -256,5 +256,5 @@ def test_past_commands_prime_the_driver_as_if_it_had_been_running(delay_s):
     for u in (6.1, 6.2, 6.3, 6.4, 6.5):
         running.step(u)
         primed.step(u)
-        assert primed.flexure_torque_nm == pytest.approx(running.flexure_torque_nm, rel=1e-4)
-        assert primed.current_torque_estimate_nm == pytest.approx(running.current_torque_estimate_nm, rel=1e-3)
+        assert primed.flexure_torque_nm == pytest.approx(running.flexure_torque_nm, rel=1e-6)
+        assert primed.current_torque_estimate_nm == pytest.approx(running.current_torque_estimate_nm, rel=1e-6)

@@ -6,20 +6,22 @@ log applied next:
 
 * the flexure twist from the measured transmitted torque (τ/K_t), the LuGre bristle deflection the measured
   motor motion implies (:func:`measured_bristle_rad`), the drive's delay buffer holding the log's commands of
-  the ticks before (``COMMAND_HISTORY_TICKS``) and, on the testbed, its current loop at the value they set
-  (:meth:`sim.plant.Plant.hold_commands`); a rigid joint: position and velocity;
+  the ticks before (as many as the longest dead time the analysis fits, ``effects.MAX_DELAY_S``) and, on the
+  testbed, its current loop where they took it (:meth:`sim.plant.Plant.hold_commands`); a rigid joint:
+  position and velocity;
 * locked fixture: the lever where the load cell's deflection puts it, a loaded hub pressed into the stop its
   torque closes (as far as the stop's soft constraint yields, :func:`stop_compliance_rad_per_nm`), the motor
   behind them; velocities from the rates of the load and of the twist. The load cell resolves the lever's
-  position far better than the encoders (one count is 0.2 N·m at the load cell);
+  position far better than the encoders (a count of the motor encoder is 0.07 N·m at the load cell, one of
+  the lever encoder 0.26 N·m);
 * free fixture: the motor angle and velocity from the encoder, the hub inside the dead band where the angles
   put it.
 
 On the model's own 10 s logs the replay retraces the log to 0.008 N·m (locked, the load cell's noise),
 0.0002 rad (free) and 0.005 N·m (closed loop) RMS; started one tick late, with empty bristle and driver states
 and the hub at the stop's edge, it missed by 0.14 N·m, 0.032 rad and 0.084 N·m, most of it in each window's
-first milliseconds (tests/test_discrepancy_model_log.py). The compared signal is the load-cell torque (locked fixture), or the
-lever angle relative to the window start (free fixture and rigid joints).
+first milliseconds (tests/test_discrepancy_model_log.py). The compared signal is the load-cell torque (locked
+fixture), or the lever angle relative to the window start (free fixture and rigid joints).
 """
 
 from __future__ import annotations
@@ -30,6 +32,7 @@ from typing import Any
 
 import numpy as np
 
+from sim.discrepancy.effects import MAX_DELAY_S
 from sim.discrepancy.model import bristle_state, stribeck_level
 from sim.discrepancy.rig import Rig
 from sim.discrepancy.signals import AnalysisConfig, Prepared
@@ -61,7 +64,7 @@ def measured_state(log: RunLog, rig: Rig, data: Prepared, *, at_rest: bool = Fal
     """k -> a function that puts the plant of ``rig`` into the log's measured state at sample k (the module
     docstring says how). Rigid joint: position and velocity. ``at_rest``: velocities zero (at the ends of a log
     the zero-phase filter's velocity is not reliable); ``contact_torque`` [N·m]: above it the hub is loaded.
-    The driver's state is set by the run (``previous_command`` of :func:`sim.discrepancy.simulate.run_testbed`).
+    The driver's state is set by the run (``previous_commands`` of :func:`sim.discrepancy.simulate.run_testbed`).
     """
     velocity = data.velocity
     if rig.model != "testbed":
@@ -153,11 +156,6 @@ def measured_bristle_rad(rig: Rig, data: Prepared) -> np.ndarray:
     return bristle_state(v, g, fr.presliding_stiffness_nm_per_rad, data.dt)
 
 
-# Control ticks of commands before a window that prime the drive's delay buffer (20 ms: longer than any delay
-# the analysis fits, the rig's 0.5 ms plus a transport delay of a few ms).
-COMMAND_HISTORY_TICKS = 20
-
-
 def _replay(log: RunLog, rig: Rig, data: Prepared, windows: list[tuple[int, int]],
             contact_torque: float) -> tuple[np.ndarray, str, str]:
     u = np.asarray(log["tau_cmd"], dtype=float)
@@ -166,8 +164,10 @@ def _replay(log: RunLog, rig: Rig, data: Prepared, windows: list[tuple[int, int]
         if start < 1:
             raise ValueError("a replay window cannot start at the log's first sample")
 
+    n_history = math.ceil(MAX_DELAY_S / data.dt) + 2  # the longest dead time the analysis fits, and two ticks
+
     def history(start: int) -> np.ndarray:
-        return u[max(0, start - COMMAND_HISTORY_TICKS):start]
+        return u[max(0, start - n_history):start]
     out = []
     if rig.model == "testbed":
         assert rig.params is not None

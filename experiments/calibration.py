@@ -14,8 +14,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from experiments.common import (TARGET_RATIO, add_params_arg, add_rerun_args, cli_parser, format_rows, load_params_arg,
-                                record_log, record_rerun, run_errors, seed_arg, write_outputs)
+from experiments.common import (TARGET_RATIO, add_output_args, add_params_arg, add_rerun_args, cli_parser, format_rows,
+                                load_params_arg, record_log, record_rerun, run_errors, seed_arg, write_outputs)
 from sensor.evaluation import SensorEvaluation, evaluate_sensor
 from sim.figures import save_figure
 from sim.params import TestbedParams
@@ -116,8 +116,7 @@ def plot_calibration(ev: SensorEvaluation, out_dir: Path) -> list[Path]:
 def main(argv: list[str] | None = None) -> int:
     parser = cli_parser(__doc__, __spec__.name)
     parser.add_argument("--seed", type=seed_arg, default=0, help="seed of every noise draw (default 0)")
-    parser.add_argument("--json", type=Path, metavar="PATH", help="write {rows: [...]} and the calibrations")
-    parser.add_argument("--plot", type=Path, metavar="DIR", help="write PNG figures to DIR")
+    add_output_args(parser, "write {rows: [...]} and the calibrations")
     add_params_arg(parser)
     add_rerun_args(parser, "the rig records (channel voltages, MINI85 and QP-sensor torque; no mechanics, no 3D)")
     args = parser.parse_args(argv)

@@ -136,11 +136,16 @@ def add_experiment_args(parser: argparse.ArgumentParser, *, feedback: bool = Tru
     parser.add_argument("--duration", type=run_seconds, metavar="S",
                         help=f"shorten every test to about S seconds, {MIN_DURATION_S:g}-{MAX_DURATION_S:g} "
                              f"(a quick check: the figures are then not comparable with the paper's)")
-    parser.add_argument("--json", type=Path, metavar="PATH", help="write the results as JSON")
-    parser.add_argument("--plot", type=Path, metavar="DIR", default=Path("out"),
-                        help="save PNG figures in DIR (default out/)")
+    add_output_args(parser)
     add_params_arg(parser)
     add_rerun_args(parser)
+
+
+def add_output_args(parser: argparse.ArgumentParser, json_help: str = "write the results as JSON") -> None:
+    """--json PATH and --plot DIR (default out/): every experiment saves its figures unless told where."""
+    parser.add_argument("--json", type=Path, metavar="PATH", help=json_help)
+    parser.add_argument("--plot", type=Path, metavar="DIR", default=Path("out"),
+                        help="save PNG figures in DIR (default out/)")
 
 
 # ---------------------------------------------------------------- rerun recordings (issue 5)

@@ -20,7 +20,8 @@ from __future__ import annotations
 import sys
 from pathlib import Path
 
-from experiments.common import add_rerun_args, check_output_paths, cli_parser, positive_int, record_rerun, write_outputs
+from experiments.common import (add_output_args, add_rerun_args, check_output_paths, cli_parser, positive_int,
+                                record_rerun, write_outputs)
 from sim.discrepancy.analysis import DiscrepancyResult, analyse
 from sim.discrepancy.report import format_result, plot_result
 from sim.discrepancy.rig import Rig, RigError, load_rig, save_rig
@@ -76,8 +77,7 @@ def main(argv: list[str] | None = None) -> None:
     parser = cli_parser(__doc__, __spec__.name)
     parser.add_argument("log", type=Path, help="run log (.csv, .parquet, .mat)")
     parser.add_argument("--rig", type=Path, required=True, metavar="TOML", help="rig description")
-    parser.add_argument("--json", type=Path, help="write the result as JSON")
-    parser.add_argument("--plot", type=Path, metavar="DIR", help="save PNG figures in DIR")
+    add_output_args(parser, "write the result as JSON")
     parser.add_argument("--save-rig", type=Path, metavar="TOML", help="write the extended rig (must not exist)")
     parser.add_argument("--workers", type=positive_int, default=2, help="processes for the candidate fits (default 2)")
     parser.add_argument("--no-replay", action="store_true", help="skip the MuJoCo replay of the held-out part")

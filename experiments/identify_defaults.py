@@ -93,7 +93,8 @@ def score(rows: list[dict]) -> tuple[float, float]:
 
 def main(argv: list[str] | None = None) -> None:
     parser = cli_parser(__doc__, __spec__.name)
-    parser.add_argument("--json", type=Path, help="write every candidate's score and the best one's rows as JSON")
+    parser.add_argument("--json", type=Path, metavar="PATH",
+                        help="write every candidate's score and the best one's rows as JSON")
     parser.add_argument("--duration", type=run_seconds, metavar="S",
                         help="shorten every test to S seconds (a quick check of the command line; the scores "
                              "need the full length)")

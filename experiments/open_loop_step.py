@@ -16,8 +16,8 @@ from pathlib import Path
 
 import numpy as np
 
-from experiments.common import (add_params_arg, add_rerun_args, cli_parser, load_params_arg, record_rerun, run_seconds,
-                                write_outputs)
+from experiments.common import (add_output_args, add_params_arg, add_rerun_args, cli_parser, load_params_arg,
+                                record_rerun, run_seconds, write_outputs)
 from sim.figures import save_figure
 from sim.motor_torque import CurrentToTorqueMap
 from sim.params import TestbedParams
@@ -115,8 +115,7 @@ def main(argv: list[str] | None = None) -> None:
                         help="torque commands of the steps [N·m] (default 0.05 0.1 0.2)")
     parser.add_argument("--duration", type=run_seconds, default=2.0, metavar="S",
                         help="seconds per step (default 2)")
-    parser.add_argument("--json", type=Path, help="write the results as JSON")
-    parser.add_argument("--plot", type=Path, metavar="DIR", help="save a PNG figure in DIR")
+    add_output_args(parser)
     add_params_arg(parser)
     add_rerun_args(parser)
     args = parser.parse_args(argv)

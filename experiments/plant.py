@@ -170,7 +170,7 @@ def plot_card(card: PlantCard, params: TestbedParams, directory: Path) -> Path:
 def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(prog=f"python -m {__spec__.name}", description="Print the testbed's model card.")
     add_params_arg(parser)
-    parser.add_argument("--json", type=Path, help="write the card as JSON to this path")
+    parser.add_argument("--json", type=Path, metavar="PATH", help="write the card as JSON to this path")
     parser.add_argument("--plot", type=Path, metavar="DIR", default=Path("out"),
                         help="save the card's figure (plant.png) in DIR (default out/)")
     add_rerun_args(parser, "the breakaway ramp (free fixture) and backlash reversal (locked fixture) runs the "

@@ -18,8 +18,8 @@ from typing import Any
 import numpy as np
 
 from experiments.calibration import comparison_rows
-from experiments.common import (TARGET_RATIO, add_params_arg, add_rerun_args, cli_parser, format_rows, load_params_arg,
-                                record_log, record_rerun, run_errors, seed_arg, write_outputs)
+from experiments.common import (TARGET_RATIO, add_output_args, add_params_arg, add_rerun_args, cli_parser, format_rows,
+                                load_params_arg, record_log, record_rerun, run_errors, seed_arg, write_outputs)
 from sensor.calibration import FS_NM
 from sensor.chamber import TemperatureRecord, chamber_run, drift_run
 from sensor.drift_fit import DriftFit, DriftModelComparison, compare_drift_models
@@ -137,8 +137,7 @@ def plot_thermal(result: ThermalExperiment, reference_c: float, out_dir: Path) -
 def main(argv: list[str] | None = None) -> int:
     parser = cli_parser(__doc__, __spec__.name)
     parser.add_argument("--seed", type=seed_arg, default=0, help="seed of every noise draw (default 0)")
-    parser.add_argument("--json", type=Path, metavar="PATH", help="write {rows: [...]} and the drift fits")
-    parser.add_argument("--plot", type=Path, metavar="DIR", help="write PNG figures to DIR")
+    add_output_args(parser, "write {rows: [...]} and the drift fits")
     add_params_arg(parser)
     add_rerun_args(parser, "the chamber and drift records (voltages, torques, TMP117; no mechanics, no 3D)")
     args = parser.parse_args(argv)

@@ -71,7 +71,7 @@ def test_discrepancy_demo_writes_a_log_whose_hidden_effect_the_analysis_names(tm
     assert demo.returncode == 0, demo.stderr
     hidden = float(demo.stdout.split("coulomb = ")[1].split()[0])
     result = run("experiments.discrepancy", str(tmp_path / "demo_log.csv"), "--rig", str(tmp_path / "demo_rig.toml"),
-                 "--no-replay")
+                 "--no-replay", "--plot", str(tmp_path))
     assert result.returncode == 0, result.stderr
     found = result.stdout.split("1. coulomb_friction: coulomb = ")[1].split()[0]
     assert float(found) == pytest.approx(hidden, rel=0.05)

@@ -129,7 +129,7 @@ def test_experiment_commands_write_their_runs_to_rerun(tmp_path, capsys):
     assert rows["/step_0.05_N_m_current/torque/reference"] == 550  # 0.5 s before the step + 0.05 s
     assert "/disturbance_current/torque/loadcell" in rows
     path = tmp_path / "open.rrd"
-    open_loop_step.main(["--duration", "0.05", "--rerun", str(path)])
+    open_loop_step.main(["--duration", "0.05", "--plot", str(tmp_path), "--rerun", str(path)])
     rows, _ = read_back(path)
     assert rows["/open-loop_step_0.1_N_m/torque/command"] == 50
     assert "rerun recording" in capsys.readouterr().out
@@ -285,7 +285,8 @@ def test_discrepancy_records_the_measured_testbed_log_and_residuals_without_repl
 
     log_path, rig_path, n = measured_locked
     path = tmp_path / "d.rrd"
-    discrepancy.main([str(log_path), "--rig", str(rig_path), "--workers", "1", "--no-replay", "--rerun", str(path)])
+    discrepancy.main([str(log_path), "--rig", str(rig_path), "--workers", "1", "--no-replay", "--plot", str(tmp_path),
+                      "--rerun", str(path)])
     rows, static = read_back(path)
     root = "/measured_bench"
     for entity in ("torque/command", "torque/loadcell", "torque/sensor", "temperature/board", "position/lever",
@@ -305,7 +306,7 @@ def test_discrepancy_records_the_replay_of_the_held_out_part(tmp_path, measured_
     log_path, rig_path, _ = measured_locked
     path, out = tmp_path / "r.rrd", tmp_path / "r.json"
     discrepancy.main([str(log_path), "--rig", str(rig_path), "--workers", "1", "--json", str(out),
-                      "--rerun", str(path)])
+                      "--plot", str(tmp_path), "--rerun", str(path)])
     held = json.loads(out.read_text())["baseline"]["split"]["held_out_samples"]
     rows, _ = read_back(path)
     assert [rows[f"/measured_bench/replay/{s}"] for s in ("measured", "baseline", "extended")] == [held] * 3
@@ -319,7 +320,8 @@ def test_discrepancy_records_a_slide_log_as_series_without_testbed(tmp_path):
 
     log_path, rig_path, n = _measured("slide", tmp_path)
     path = tmp_path / "s.rrd"
-    discrepancy.main([str(log_path), "--rig", str(rig_path), "--workers", "1", "--no-replay", "--rerun", str(path)])
+    discrepancy.main([str(log_path), "--rig", str(rig_path), "--workers", "1", "--no-replay", "--plot", str(tmp_path),
+                      "--rerun", str(path)])
     rows, static = read_back(path)
     assert rows["/measured_bench/effort/command"] == n and rows["/measured_bench/position/joint"] == n
     assert rows["/measured_bench/residual_effort/baseline"] == n

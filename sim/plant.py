@@ -21,8 +21,8 @@ from sim.params import TestbedParams
 from sim.thermal import ThermalState
 
 
-# Signals a run records every tick (see read_signals): name -> unit. Standard run-log names where they exist.
 CURRENT_PRIMING_TIME_CONSTANTS = 10  # hold_commands replays the current loop over this many time constants
+# Signals a run records every tick (see read_signals): name -> unit. Standard run-log names where they exist.
 SIGNAL_UNITS: dict[str, str] = {
     "tau_cmd": "N·m",  # motor torque command, output side
     "q": "rad",  # absolute lever angle
@@ -165,7 +165,8 @@ class Plant:
 
         current = command_aged(steps * h + delay)
         for j in range(steps, 0, -1):
-            current = command_aged(j * h + delay) + (current - command_aged(j * h + delay)) * decay
+            target = command_aged(j * h + delay)
+            current = target + (current - target) * decay
         d.ctrl[self._u_motor] = ctrl[-1]
         d.act[self._act_current] = current / self.params.motor.torque_constant_nm_per_a
         self._tau_cmd = float(past[-1])
@@ -328,7 +329,7 @@ class Plant:
 
 def _ticks_back(age_s: float, tick_s: float) -> int:
     """Which past control tick (1: the last one) was applied ``age_s`` [s] before now."""
-    return max(1, math.ceil(age_s / tick_s - 1e-9))
+    return max(1, math.ceil(age_s / tick_s - 1e-9))  # 1e-9: an age of exactly k ticks (to rounding) is tick k
 
 
 def prime_ctrl_history(model: mujoco.MjModel, data: mujoco.MjData, actuator: int, past_ctrl: np.ndarray,

@@ -5,7 +5,6 @@ from its realistic range (sim.discrepancy.synth.draw_effect) with the seed; the 
 and the baseline rig. Tolerances are stated per effect; the looser ones say why.
 """
 
-import math
 
 import pytest
 

@@ -16,6 +16,7 @@ from sim.params import TestbedParams
 from sim.plant import Plant
 from sim.recording import entity_name, record_logs
 from sim.run import run_open_loop
+from sim.runlog import RunLog
 
 N_TICKS = 300  # 0.3 s at 1 kHz
 
@@ -154,9 +155,7 @@ def series_labels(path, prefix: str) -> set[str]:
     return labels
 
 
-def _series_log(n: int, unit: str = "N·m", **columns) -> "RunLog":
-    from sim.runlog import RunLog
-
+def _series_log(n: int, unit: str = "N·m", **columns) -> RunLog:
     return RunLog({"time": np.arange(1, n + 1) * 1e-3, **columns}, {"time": "s", **{c: unit for c in columns}})
 
 

@@ -30,7 +30,6 @@ from sim.discrepancy.rig import AddedEffect, Rig, check_rig_matches_log
 from sim.discrepancy.selection import (
     MAX_ROUNDS,
     CandidateScore,
-    ChannelScore,
     against_model_log,
     carried_by_model,
     held_out_score,

@@ -104,12 +104,19 @@ class AdmittanceController:
         self.period_s = check_range("period_s", self.period_s, 0.0, low_open=True)
         self.output_limit_nm = check_range("output_limit_nm", self.output_limit_nm, 0.0, low_open=True)
         self.rest_angle_rad = check_range("rest_angle_rad", self.rest_angle_rad, -1e6, 1e6)
-        # Forward Euler of the virtual dynamics is stable only for T_s·B_d/M_d < 2 (and T_s²·K_d/M_d small).
+        # Forward Euler of the virtual dynamics, x+ = [[1, T], [-T·K/M, 1 - T·B/M]] x, is stable (Jury) for
+        # T·B/M < 2 and T·K < B; K = 0 leaves the marginal pole at 1 of a free mass.
         leak = self.period_s * self.desired_damping_nms_per_rad / self.desired_inertia_kgm2
         if leak >= 2.0:
             raise ValueError(f"desired_damping_nms_per_rad = {self.desired_damping_nms_per_rad}: T_s·B_d/M_d = "
                              f"{leak:.3g} must be < 2 for the discrete virtual dynamics to be stable (valid range "
                              f"[0, {2.0 * self.desired_inertia_kgm2 / self.period_s:g}) N·m·s/rad)")
+        stiffness_limit = self.desired_damping_nms_per_rad / self.period_s
+        if self.desired_stiffness_nm_per_rad > 0.0 and self.desired_stiffness_nm_per_rad >= stiffness_limit:
+            raise ValueError(f"desired_stiffness_nm_per_rad = {self.desired_stiffness_nm_per_rad}: T_s·K_d must be "
+                             f"< B_d for the discrete virtual dynamics to be stable (valid range [0, "
+                             f"{stiffness_limit:g}) N·m/rad at B_d = {self.desired_damping_nms_per_rad:g} "
+                             f"N·m·s/rad; 0 when B_d = 0)")
         self.reset()
 
     def reset(self, angle_rad: float | None = None) -> None:

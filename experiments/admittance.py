@@ -25,14 +25,15 @@ from pathlib import Path
 
 import numpy as np
 
-from controllers.admittance import AdmittanceController
+from controllers.admittance import (PAPER_DESIRED_DAMPING_NMS_PER_RAD, PAPER_DESIRED_INERTIA_KGM2,
+                                    AdmittanceController)
 from controllers.feedback import make_feedback
 from controllers.loop import run_admittance_loop
 from experiments.common import (add_experiment_args, cli_parser, load_params_arg, record_rerun, run_errors,
                                 short_run_banner, write_outputs)
 from sim.figures import save_figure
 from sim.motor_torque import CurrentToTorqueMap
-from sim.params import TestbedParams
+from sim.params import ParameterError, TestbedParams
 from sim.plant import Plant
 from sim.runlog import RunLog
 
@@ -108,10 +109,12 @@ class PushOutcome:
     final_angle_rad: float
     velocity_tracking: float
     log: RunLog | None = field(default=None, repr=False, compare=False)
+    hand: ScriptedHand | None = field(default=None, repr=False, compare=False)  # the hand this push used
 
     def to_dict(self) -> dict:
         d = asdict(self)
         d.pop("log")
+        d.pop("hand")
         return d
 
 
@@ -143,6 +146,26 @@ class AdmittanceResult:
                 "follows_slow": self.follows_slow, "resists_fast": self.resists_fast}
 
 
+def make_controller(params: TestbedParams) -> AdmittanceController:
+    """The paper's admittance controller at the plant's control period, limited to the driver's current limit.
+
+    Raises
+    ------
+    ParameterError
+        If the control period is too long to discretise the paper's M_d, B_d (names
+        ``simulation.control_period_s`` and its valid range).
+    """
+    dt = params.simulation.control_period_s
+    limit_nm = CurrentToTorqueMap.from_params(params).command_limit_nm  # the driver's current limit
+    try:
+        return AdmittanceController(period_s=dt, output_limit_nm=limit_nm)
+    except ValueError as exc:
+        longest_s = 2.0 * PAPER_DESIRED_INERTIA_KGM2 / PAPER_DESIRED_DAMPING_NMS_PER_RAD
+        raise ParameterError(f"simulation.control_period_s = {dt:g} s: the admittance controller cannot "
+                             f"discretise the paper's M_d and B_d at this period ({exc}); valid range for "
+                             f"admittance control (0, {longest_s:g}) s") from exc
+
+
 def run_push(params: TestbedParams, push_s: float, name: str, seed: int = 0, duration_s: float | None = None,
              progress: bool = False) -> PushOutcome:
     """One push of the scripted hand on the free lever under admittance control."""
@@ -152,8 +175,7 @@ def run_push(params: TestbedParams, push_s: float, name: str, seed: int = 0, dur
         hand = ScriptedHand(min(push_s, duration_s), period_s=dt, before_s=min(REST_BEFORE_S, duration_s / 4),
                             after_s=min(REST_AFTER_S, duration_s / 4))
     plant = Plant(params, "free")
-    limit_nm = CurrentToTorqueMap.from_params(params).command_limit_nm  # the driver's current limit
-    controller = AdmittanceController(period_s=dt, output_limit_nm=limit_nm)
+    controller = make_controller(params)
     log = run_admittance_loop(plant, controller, make_feedback("sensor", params, seed), hand,
                               progress_label=f"{name} push" if progress else None,
                               meta={"push_s": hand.push_s, "seed": seed})
@@ -165,7 +187,7 @@ def run_push(params: TestbedParams, push_s: float, name: str, seed: int = 0, dur
                        peak_torque / peak_velocity if peak_velocity > 0 else float("inf"),
                        float(np.max(hand_angle - log["q"])), float(log["q"][-1]),
                        float(np.sqrt(np.mean((omega - omega_ref) ** 2)) / max(np.abs(omega_ref).max(), 1e-12)),
-                       log=log)
+                       log=log, hand=hand)
 
 
 def run_admittance(params: TestbedParams | None = None, seed: int = 0, duration_s: float | None = None,
@@ -201,8 +223,7 @@ def plot_admittance(result: AdmittanceResult, directory: Path) -> Path:
     for col, p in enumerate(result.pushes):
         log = p.log
         t = log["time"]
-        hand = ScriptedHand(p.push_s, period_s=float(t[1] - t[0]) if len(t) > 1 else 1e-3)
-        hand_angle, hand_velocity = hand.path(t)
+        hand_angle, hand_velocity = p.hand.path(t)
         axes[0][col].plot(t, log["tau_ext"], label="hand torque")
         axes[0][col].plot(t, -log["tau_sensor"], "--", lw=0.8, label="τ_ext from the sensor")
         axes[0][col].set(title=f"{p.name} push ({p.push_s:g} s)", ylabel="torque [N·m]")
@@ -223,7 +244,7 @@ def main(argv: list[str] | None = None) -> None:
     parser = cli_parser(__doc__, __spec__.name)
     add_experiment_args(parser, feedback=False)
     args = parser.parse_args(argv)
-    params = load_params_arg(parser, args)
+    params = load_params_arg(parser, args, checks=(make_controller,))
     print("running the slow and fast pushes (progress on stderr) ...", file=sys.stderr)
     with run_errors(parser):
         result = run_admittance(params, args.seed, args.duration, progress=True)

@@ -29,10 +29,11 @@ def add_params_arg(parser: argparse.ArgumentParser) -> None:
                         help="TOML file overriding parameters, e.g. [friction] breakaway_torque_nm = 0.2")
 
 
-def load_params_arg(parser: argparse.ArgumentParser, args: argparse.Namespace) -> TestbedParams:
+def load_params_arg(parser: argparse.ArgumentParser, args: argparse.Namespace, checks=()) -> TestbedParams:
     """Load --params and check the output flags, before anything runs.
 
-    A bad file, or a parameter set the testbed's model cannot be built from (a constraint between fields),
+    A bad file, or a parameter set the testbed's model cannot be built from (a constraint between fields), or
+    one that a callable of ``checks`` (``check(params)``, raising ParameterError) refuses for this experiment,
     becomes a command-line error that names the field; so does a --json or --plot that cannot be written or
     that names the --params file (inputs are never overwritten).
     """
@@ -41,6 +42,8 @@ def load_params_arg(parser: argparse.ArgumentParser, args: argparse.Namespace) -
         params = load_params(args.params)
         for fixture in FIXTURES:
             build_xml(params, fixture)
+        for check in checks:
+            check(params)
     except ParameterError as exc:
         parser.error(str(exc))
     return params
@@ -111,10 +114,11 @@ def write_json(path: Path, data: dict[str, Any]) -> None:
 
 
 def write_outputs(args: argparse.Namespace, data: dict[str, Any], plot=None) -> None:
-    """The CLIs' --json and --plot: write ``data`` as JSON and say where; call ``plot(directory)`` (returning a
-    figure path or a list of them) and print each figure's path. Nothing for an option not given."""
+    """The CLIs' --json and --plot: write ``data`` as JSON, with the run's settings under "run" (``run_settings``),
+    and say where; call ``plot(directory)`` (returning a figure path or a list of them) and print each figure's
+    path. Nothing for an option not given."""
     if getattr(args, "json", None):
-        write_json(args.json, data)
+        write_json(args.json, {**data, "run": run_settings(args)})
         print(f"wrote {args.json}")
     if plot is not None and getattr(args, "plot", None):
         paths = plot(args.plot)
@@ -227,6 +231,16 @@ def seed_arg(text: str) -> int:
 def positive_int(text: str) -> int:
     """argparse type of a count: an integer >= 1."""
     return _integer_at_least(text, 1, "values")
+
+
+def run_settings(args: argparse.Namespace) -> dict[str, Any]:
+    """What a result depends on besides the parameters: the seed, the --params file, and for a CLI with
+    --duration that duration [s] and whether the figures are comparable with the paper's (full length)."""
+    settings: dict[str, Any] = {"seed": getattr(args, "seed", None),
+                                "params": str(args.params) if getattr(args, "params", None) else None}
+    if hasattr(args, "duration"):
+        settings |= {"duration_s": args.duration, "full_length": args.duration is None}
+    return settings
 
 
 def short_run_banner(args: argparse.Namespace) -> None:

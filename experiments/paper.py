@@ -18,7 +18,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from experiments.admittance import plot_admittance, run_admittance
+from experiments.admittance import make_controller, plot_admittance, run_admittance
 from experiments.common import (TARGET_RATIO, add_experiment_args, cli_parser, format_rows, load_params_arg,
                                 outside_band, paper_row, record_rerun, run_errors, short_run_banner, write_outputs)
 from experiments.sinusoid import plot_sinusoid, run_sinusoid
@@ -57,6 +57,8 @@ class PaperResult:
     figures: list[Path] = field(default_factory=list)
     missing: list[str] = field(default_factory=list)
     logs: dict[str, Any] = field(default_factory=dict, repr=False)  # run name -> RunLog (rerun recording)
+    seed: int = 0
+    duration_s: float | None = None  # [s] the shortened run length, None for the full-length tests
 
     def within_target(self) -> tuple[int, int]:
         """(number of rows within a factor TARGET_RATIO, number of rows with a ratio)."""
@@ -153,14 +155,23 @@ def run_paper(params: TestbedParams | None = None, seed: int = 0, duration_s: fl
         figures += [plot_step(step, plot_dir), plot_sinusoid(sinusoid, plot_dir),
                     plot_admittance(admittance, plot_dir)]
     logs = {**step.logs(), **sinusoid.logs(), **admittance.logs()}
-    return PaperResult(rows, _behaviours(step, sinusoid, admittance, breakaway), figures, missing, logs)
+    return PaperResult(rows, _behaviours(step, sinusoid, admittance, breakaway), figures, missing, logs, seed,
+                       duration_s)
+
+
+def _cell(text: str) -> str:
+    """``text`` as one markdown table cell (its '|', as in 'mean |output|', escaped)."""
+    return text.replace("|", "\\|")
 
 
 def markdown_report(result: PaperResult, directory: Path) -> str:
     """The report: the table, the behaviours and every figure (paths relative to ``directory``)."""
     within, total = result.within_target()
     lines = ["# torquebed: the paper's figures beside the simulation", "",
-             f"{within} of {total} figures within a factor {TARGET_RATIO} of the paper (ratio = sim / paper).", "",
+             f"{within} of {total} figures within a factor {TARGET_RATIO} of the paper (ratio = sim / paper); "
+             f"seed {result.seed}, " + ("full-length tests." if result.duration_s is None else
+                                        f"**short run ({result.duration_s:g} s per test): a check of the command "
+                                        f"line, not comparable with the paper's figures.**"), "",
              "| table | quantity | unit | paper | sim | ratio |", "|---|---|---|---|---|---|"]
 
     def num(x):
@@ -168,10 +179,11 @@ def markdown_report(result: PaperResult, directory: Path) -> str:
 
     for r in result.rows:
         flag = " ⚠" if outside_band(r["ratio"]) else ""
-        lines.append(f"| {r['table']} | {r['quantity']} | {r['unit']} | {num(r['paper'])} | {num(r['sim'])} | "
+        lines.append(f"| {r['table']} | {_cell(r['quantity'])} | {r['unit']} | {num(r['paper'])} | {num(r['sim'])} | "
                      f"{num(r['ratio'])}{flag} |")
     lines += ["", "## Behaviours", "", "| paper | simulation | reproduced |", "|---|---|---|"]
-    lines += [f"| {b.claim} | {b.simulated} | {'yes' if b.reproduced else 'no'} |" for b in result.behaviours]
+    lines += [f"| {_cell(b.claim)} | {_cell(b.simulated)} | {'yes' if b.reproduced else 'no'} |"
+              for b in result.behaviours]
     if result.missing:
         lines += ["", "## Not run", ""] + [f"- {m}" for m in result.missing]
     lines += ["", "## Figures", ""]
@@ -186,7 +198,7 @@ def main(argv: list[str] | None = None) -> None:
     parser = cli_parser(__doc__, __spec__.name)
     add_experiment_args(parser, feedback=False)
     args = parser.parse_args(argv)
-    params = load_params_arg(parser, args)
+    params = load_params_arg(parser, args, checks=(make_controller,))
     with run_errors(parser):
         result = run_paper(params, args.seed, args.duration, args.plot, progress=True)
     within, total = result.within_target()

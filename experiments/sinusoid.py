@@ -12,8 +12,8 @@ in the flexure and the load cell (``PRECONDITION_HOLD_S`` pushing, ``PRECONDITIO
 control: 0.05 N·m sine at 0.2 Hz, 0.1 N·m square wave at 1 Hz, 10 N·m sine at 0.2 Hz, each starting at zero
 phase, for ``WARMUP_PERIODS`` period (not evaluated: the figures describe the periodic test, not its start
 from that preload) and then ``TEST_DURATION_S``, evaluated. RMS and peak errors of the load-cell reading
-against the reference over the evaluated window, with the peak error defined in :mod:`controllers.tracking` (|max y - max r|: the
-definition under which the paper's Table VII is consistent). The one-sided actuation of the paper's
+against the reference over the evaluated window, with the peak error defined in :mod:`controllers.tracking`
+(|max y - max r|, the crest reading of the paper's "peak error"). The one-sided actuation of the paper's
 low-torque current-feedback tests is measured as the share of the load-cell torque's impulse that is
 positive: ``positive_share`` = sum(max(y, 0)) / sum(|y|) (0.5 for a symmetric output, 1 for an output that
 never goes negative), beside how much torque is produced at all: ``output_level`` = mean |y| / mean |r| (about 1

@@ -39,8 +39,9 @@ def test_virtual_dynamics_follow_the_analytic_mass_damper():
 
 
 def test_virtual_spring_oscillates_at_its_natural_frequency():
-    """With K_d > 0 and B_d = 0 the virtual reference oscillates at sqrt(K_d/M_d) (zero crossings)."""
-    c = AdmittanceController(desired_damping_nms_per_rad=0.0, desired_stiffness_nm_per_rad=3.0)
+    """With K_d > 0 and light damping (B_d = 0.01, the least forward Euler needs is T_s·K_d = 0.003) the virtual
+    reference oscillates at sqrt(K_d/M_d) (zero crossings; the damped frequency is 0.01 % lower)."""
+    c = AdmittanceController(desired_damping_nms_per_rad=0.01, desired_stiffness_nm_per_rad=3.0)
     c.reference_angle_rad = 0.1
     theta, _ = _virtual_response(c, 0.0, 3000)
     crossings = np.flatnonzero(np.diff(np.sign(theta)) != 0)
@@ -59,3 +60,19 @@ def test_unstable_discretisation_is_refused_naming_the_field():
     """T_s B_d / M_d >= 2 would make Eqs. 31-32 diverge: refused with the valid range."""
     with pytest.raises(ValueError, match="desired_damping_nms_per_rad = .*valid range"):
         AdmittanceController(desired_damping_nms_per_rad=100.0)
+
+
+def test_virtual_spring_stiffer_than_the_damping_allows_is_refused_naming_the_field():
+    """Forward Euler needs T_s K_d < B_d: at B_d 0.6 N·m·s/rad and 1 ms, K_d = 600 N·m/rad is the edge."""
+    with pytest.raises(ValueError, match=r"desired_stiffness_nm_per_rad = 100000.0: .*valid range \[0, 600\)"):
+        AdmittanceController(desired_stiffness_nm_per_rad=1e5)
+    with pytest.raises(ValueError, match="desired_stiffness_nm_per_rad"):
+        AdmittanceController(desired_damping_nms_per_rad=0.0, desired_stiffness_nm_per_rad=3.0)
+
+
+def test_virtual_spring_just_inside_the_stability_limit_decays():
+    """K_d = 590 N·m/rad (T_s K_d = 0.59 < B_d = 0.6): the virtual dynamics decay instead of diverging."""
+    c = AdmittanceController(desired_stiffness_nm_per_rad=590.0)
+    c.reference_angle_rad = 0.1
+    theta, _ = _virtual_response(c, 0.0, 20000)
+    assert np.max(np.abs(theta[-1000:])) < 0.1

@@ -18,6 +18,20 @@ def test_peak_error_compares_peaks_not_pointwise_errors():
     assert e.max_abs_nm >= e.rms_nm  # the pointwise maximum cannot be below the RMS
 
 
+def test_an_offset_lagging_output_gives_the_papers_pair_under_both_peak_readings():
+    """Offset +0.0505 N·m, lag 81.8°: RMS 0.0685 with crest and trough misses both 0.0505 N·m, so the
+    two-sided peak reading fits the paper's current-feedback sine pair as well as the one-sided one."""
+    t = np.linspace(0, 5, 50001)[:-1]  # one period of 0.2 Hz
+    w = 2 * np.pi * 0.2
+    r = 0.05 * np.sin(w * t)
+    y = 0.0505 + 0.05 * np.sin(w * t - np.radians(81.77))
+    e = tracking_error(y, r)
+    assert e.rms_nm == pytest.approx(0.0685, abs=2e-5)
+    assert e.peak_nm == pytest.approx(0.0505, abs=1e-6)
+    assert e.trough_nm == pytest.approx(0.0505, abs=1e-6)
+    assert y.min() > 0.0  # one-sided
+
+
 def test_reached_fraction_is_the_mean_output_over_the_mean_reference():
     """A step output at 30 % of its reference has reached fraction 0.3 and RMS error 0.7 r."""
     e = tracking_error(np.full(100, 0.015), np.full(100, 0.05))

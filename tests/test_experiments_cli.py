@@ -50,6 +50,41 @@ def test_admittance_short_mode_reports_both_pushes(tmp_path):
     assert (tmp_path / "admittance.png").stat().st_size > 10_000
 
 
+def test_paper_short_mode_writes_a_report_whose_tables_parse_and_says_it_is_short(tmp_path):
+    """experiments.paper --duration: every markdown table row has its header's number of cells (a '|' inside a
+    cell is escaped), the report and the JSON say the run is short and carry its seed."""
+    out = tmp_path / "p.json"
+    result = run("experiments.paper", "--duration", "0.05", "--seed", "2", "--json", str(out), "--plot", str(tmp_path))
+    assert result.returncode == 0, result.stderr
+    assert "SHORT RUN" in result.stdout
+    data = json.loads(out.read_text())
+    assert data["run"] == {"seed": 2, "params": None, "duration_s": 0.05, "full_length": False}
+    assert {"III", "IV", "V", "VI", "VII"} <= {r["table"] for r in data["rows"]}
+    report = (tmp_path / "paper_report.md").read_text()
+    assert "short run (0.05 s per test)" in report and "seed 2" in report
+    columns = None
+    for line in report.splitlines():
+        if not line.startswith("|"):
+            columns = None
+            continue
+        cells = len(line.replace("\\|", "").split("|")) - 2
+        columns = columns or cells
+        assert cells == columns, line
+    for figure in ("step.png", "sinusoid.png", "admittance.png"):
+        assert (tmp_path / figure).stat().st_size > 10_000
+
+
+def test_a_control_period_the_admittance_controller_cannot_discretise_is_a_usage_error(tmp_path):
+    """A 0.1 s control period (within simulation.control_period_s's range) makes T_s·B_d/M_d = 2: the
+    admittance CLI names simulation.control_period_s and its range for admittance control, before any run."""
+    params = tmp_path / "slow.toml"
+    params.write_text("[simulation]\ncontrol_period_s = 0.1\n[backlash]\nstop_time_constant_s = 0.001\n"
+                      "[friction]\nload_friction_time_constant_s = 0.001\n")
+    result = run("experiments.admittance", "--duration", "2", "--params", str(params))
+    assert result.returncode == 2 and "Traceback" not in result.stderr
+    assert "simulation.control_period_s = 0.1 s" in result.stderr and "(0, 0.1) s" in result.stderr
+
+
 @pytest.mark.parametrize("args,message", [(("--duration", "0"), "--duration"),
                                           (("--duration", "1e-4"), "valid range [0.01, 3600] s"),
                                           (("--duration", "1e7"), "valid range [0.01, 3600] s"),

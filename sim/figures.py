@@ -1,4 +1,4 @@
-"""Writing matplotlib figures: one resolution and one layout step for every PNG the project writes."""
+"""Writing matplotlib figures: one resolution and one layout step for every PNG the project writes; display helpers."""
 
 from __future__ import annotations
 

@@ -4,7 +4,9 @@
 
 Simulates the calibration rig (test weights to ±25 N·m five times each way, the T_x/T_y moment protocol),
 fits LS and the paper's QP, evaluates the QP calibration on a second session of the same protocols, and
-prints every figure beside the paper's.
+prints every figure beside the paper's. Figures: ``calibration_channels.png`` (paper Fig. 6),
+``calibration_nonlinearity.png`` (Fig. 7: nonlinearity and hysteresis, the curves whose peaks are Table III's),
+``calibration_crosstalk_noise.png`` (Fig. 8(b)-(f): crosstalk, channel voltages under T_x / T_y, LS and QP noise).
 """
 
 from __future__ import annotations
@@ -14,10 +16,15 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+
 from experiments.common import (TARGET_RATIO, add_output_args, add_params_arg, add_rerun_args, cli_parser, format_rows,
                                 load_params_arg, record_log, record_rerun, run_errors, seed_arg, write_outputs)
+from sensor import metrics
+from sensor.calibration import FS_NM
 from sensor.evaluation import SensorEvaluation, evaluate_sensor
-from sim.figures import save_figure
+from sensor.protocol import PRELOAD_LABEL
+from sim.figures import moving_mean, save_figure
 from sim.params import TestbedParams
 
 TABLE = "calibration"
@@ -66,51 +73,243 @@ def run_calibration(params: TestbedParams | None = None, seed: int = 0,
     return CalibrationExperiment(evaluation, comparison_rows(evaluation.figures, PAPER_FIGURES), figures)
 
 
+# Paper Sec. IV-B: the peaks of Fig. 7(c) and (d), the deviation curves behind Table III's 0.111 and 0.139 % FS.
+PAPER_FIG7_PEAK_PCT_FS = {"nonlinearity": 0.1106, "hysteresis": 0.1389}
+PAPER_CROSSTALK_VOLTAGE_V = 0.06  # Sec. IV-B: channel voltage change under 25 N·m of T_x or T_y (Fig. 8(c)-(d))
+MAGNIFIED_HALF_WIDTH_NM = 0.3  # [N·m] half width of Fig. 7(b)'s window (the paper magnifies about -0.3 N·m)
+CROSSTALK_PLOT_MEAN_S = 0.1  # [s] window of the running mean drawn over the raw crosstalk output (display only)
+
+
+def _paper(name: str) -> float:
+    return next(value for key, *_, value in PAPER_FIGURES if key == name)
+
+
+@dataclass(frozen=True, eq=False)
+class BranchFigure:
+    """What Fig. 7 plots, from the metric functions on the samples Table III uses (preload cycles excluded).
+
+    ``level_nm`` are the reference-torque bins holding both branches [N·m]; ``ascending_nm``,
+    ``descending_nm``, ``average_nm`` the QP output of each branch and their mean there, ``line_nm`` the
+    least-squares line of the mean [N·m]; ``nonlinearity_pct_fs`` the mean's deviation from the line and
+    ``hysteresis_pct_fs`` the ascending minus the descending branch [% FS]. Their largest magnitudes are the
+    table's nonlinearity and hysteresis. ``bin_width_nm``: width of the reference-torque bins [N·m].
+    """
+
+    level_nm: np.ndarray
+    ascending_nm: np.ndarray
+    descending_nm: np.ndarray
+    average_nm: np.ndarray
+    line_nm: np.ndarray
+    nonlinearity_pct_fs: np.ndarray
+    hysteresis_pct_fs: np.ndarray
+    bin_width_nm: float
+
+
+def branch_figure(ev: SensorEvaluation) -> BranchFigure:
+    """Fig. 7's curves: :func:`sensor.metrics.nonlinearity` and :func:`~sensor.metrics.hysteresis` on the
+    evaluation session's measured cycles (as :func:`sensor.evaluation.evaluate_sensor` calls them)."""
+    rec = ev.evaluation_record
+    measured = rec.schedule.cycle != PRELOAD_LABEL
+    direction = metrics.reference_direction(rec.tau_reference_nm)[measured]
+    ref, out = rec.tau_reference_nm[measured], ev.qp.predict(rec.voltages_v)[measured]
+    bc = metrics.branch_curves(ref, out, direction)
+    nl = metrics.nonlinearity(ref, out, direction)
+    hy = metrics.hysteresis(ref, out, direction)
+    c = bc.level_nm[bc.both]
+    asc, desc = c + bc.ascending_error_nm[bc.both], c + bc.descending_error_nm[bc.both]
+    return BranchFigure(c, asc, desc, 0.5 * (asc + desc), nl.slope * c + nl.offset_nm,
+                        100.0 * nl.deviation_nm / nl.fs_nm, 100.0 * hy.difference_nm / hy.fs_nm,
+                        float(np.diff(bc.bin_edges_nm).mean()))
+
+
+def crosstalk_trace(ev: SensorEvaluation, axis: str) -> tuple[np.ndarray, metrics.CrosstalkResult]:
+    """Apparent T_z under the ``axis`` moment [N·m], tared on the unloaded samples as Table IV's crosstalk
+    (:func:`sensor.metrics.crosstalk`), and that metric's result."""
+    rec = ev.crosstalk_records[axis]
+    tau, unloaded = ev.qp.predict(rec.voltages_v), rec.schedule.branch == 0
+    return tau - tau[unloaded].mean(), metrics.crosstalk(tau, tare_mask=unloaded)
+
+
 def plot_calibration(ev: SensorEvaluation, out_dir: Path) -> list[Path]:
-    """Figures like the paper's Figs. 6-8: channel responses, errors and hysteresis, crosstalk and noise."""
+    """Figures like the paper's Figs. 6-8: calibration, nonlinearity and hysteresis, crosstalk and noise."""
     import matplotlib
     matplotlib.use("Agg")
+
+    return [plot_channels(ev, out_dir), plot_nonlinearity(ev, out_dir), plot_crosstalk_noise(ev, out_dir)]
+
+
+def _pct_fs(torque_nm):
+    return 100.0 * torque_nm / FS_NM
+
+
+def _nm(pct_fs):
+    return pct_fs * FS_NM / 100.0
+
+
+def _fs_axis(ax, quantity: str) -> None:
+    """A right-hand axis in % FS beside an axis in N·m."""
+    ax.secondary_yaxis("right", functions=(_pct_fs, _nm)).set_ylabel(f"{quantity} [% FS]")
+
+
+def plot_channels(ev: SensorEvaluation, out_dir: Path) -> Path:
+    """Fig. 6: the calibration session's loading, the channel voltages against torque; and the QP error on
+    the evaluation session (Table III's max and RMS error)."""
     import matplotlib.pyplot as plt
 
-    from sensor import metrics
-
-    paths = []
     rec = ev.calibration_record
-    fig, ax = plt.subplots(1, 2, figsize=(11, 4))
+    fig, ax = plt.subplots(1, 3, figsize=(16, 4.4))
     ax[0].plot(rec.time_s, rec.tau_reference_nm, lw=0.8)
-    ax[0].set(xlabel="time [s]", ylabel="MINI85 torque [N·m]", title="calibration loading (5x each way)")
+    ax[0].set(xlabel="time [s]", ylabel="MINI85 torque [N·m]",
+              title="(a) calibration session: a preload, then 5 cycles each way")
     step = max(1, len(rec.time_s) // 4000)
-    for k in range(8):
+    for k in range(rec.voltages_v.shape[1]):
         ax[1].plot(rec.tau_reference_nm[::step], rec.voltages_v[::step, k], ".", ms=1, label=f"ch {k + 1}")
-    ax[1].set(xlabel="torque [N·m]", ylabel="channel voltage [V]", title="channel responses")
+    ax[1].set(xlabel="MINI85 torque [N·m]", ylabel="channel voltage [V]", title="(b) the eight channels' responses")
     ax[1].legend(markerscale=8, fontsize=7, ncol=2)
-    paths.append(save_figure(fig, out_dir, "calibration_channels.png"))
-
     evr = ev.evaluation_record
-    out = ev.qp.predict(evr.voltages_v)
-    direction = metrics.reference_direction(evr.tau_reference_nm)
-    bc = metrics.branch_curves(evr.tau_reference_nm, out, direction)
-    fig, ax = plt.subplots(1, 2, figsize=(11, 4))
-    ax[0].plot(evr.tau_reference_nm[::step], (out - evr.tau_reference_nm)[::step], ".", ms=1)
-    ax[0].set(xlabel="torque [N·m]", ylabel="QP error [N·m]", title="error on the evaluation session")
-    for name in ("ascending", "descending"):
-        ax[1].plot(bc.level_nm[bc.both], getattr(bc, f"{name}_error_nm")[bc.both], label=name)
-    ax[1].set(xlabel="torque [N·m]", ylabel="branch error [N·m]", title="hysteresis branches")
-    ax[1].legend()
-    paths.append(save_figure(fig, out_dir, "calibration_hysteresis.png"))
+    measured = evr.schedule.cycle != PRELOAD_LABEL
+    ref, err = evr.tau_reference_nm[measured], (ev.qp.predict(evr.voltages_v) - evr.tau_reference_nm)[measured]
+    k = int(np.argmax(np.abs(err)))
+    ax[2].plot(ref[::step], err[::step], ".", ms=1, label=f"1 sample in {step}")
+    ax[2].plot(ref[k], err[k], "s", ms=8, mfc="none", color="tab:red", label="largest error")
+    ax[2].legend(fontsize=8, loc="lower right")
+    _fs_axis(ax[2], "error")
+    (emax, _), (rms, _) = ev.figures["max_error_pct_fs"], ev.figures["rms_error_nm"]
+    ax[2].set(xlabel="MINI85 torque [N·m]", ylabel="QP output - MINI85 [N·m]",
+              title=f"(c) QP error, evaluation session (5 cycles each way)\nmax {emax:.3f} % FS (paper "
+                    f"{_paper('max_error_pct_fs'):.3f}), RMS {rms:.4f} N·m (paper {_paper('rms_error_nm'):.4f})")
+    fig.suptitle("Calibration experiment (paper Fig. 6; Table III's errors)", fontsize=11)
+    return save_figure(fig, out_dir, "calibration_channels.png")
 
-    fig, ax = plt.subplots(1, 3, figsize=(14, 4))
-    for axis, r in ev.crosstalk_records.items():
-        ax[0].plot(r.time_s, ev.qp.predict(r.voltages_v), lw=0.6, label=f"T_{axis} applied")
-    ax[0].set(xlabel="time [s]", ylabel="apparent T_z [N·m]", title="crosstalk")
-    ax[0].legend()
+
+def plot_nonlinearity(ev: SensorEvaluation, out_dir: Path) -> Path:
+    """Fig. 7: branch average and its line, a magnified view, the nonlinearity and hysteresis deviations."""
+    import matplotlib.pyplot as plt
+
+    bf = branch_figure(ev)
+    fig, ax = plt.subplots(2, 2, figsize=(12, 8.5))
+    for a in ax[0]:
+        a.plot(bf.level_nm, bf.ascending_nm, "-", color="tab:blue", lw=0.8, label="ascending branch")
+        a.plot(bf.level_nm, bf.descending_nm, "-", color="tab:orange", lw=0.8, label="descending branch")
+        a.plot(bf.level_nm, bf.average_nm, "o", ms=3, color="k", label="branch average")
+        a.plot(bf.level_nm, bf.line_nm, "--", color="tab:red", lw=1.0, label="least-squares line of the average")
+        a.set(xlabel="MINI85 torque [N·m]", ylabel="QP sensor output [N·m]")
+    ax[0, 0].legend(fontsize=8)
+    ax[0, 0].set_title(f"(a) branch average and its line ({bf.level_nm.size} bins of {bf.bin_width_nm:.2f} "
+                       "N·m)")
+    _magnify(ax[0, 1], bf)
+    for a, values, name, title in (
+            (ax[1, 0], bf.nonlinearity_pct_fs, "nonlinearity", "(c) nonlinearity: average - line"),
+            (ax[1, 1], bf.hysteresis_pct_fs, "hysteresis", "(d) hysteresis: ascending - descending")):
+        _deviation_panel(a, bf.level_nm, values, PAPER_FIG7_PEAK_PCT_FS[name], title)
+    fig.suptitle("Nonlinearity and hysteresis of the QP calibration on the evaluation session, preload cycles "
+                 "excluded (paper Fig. 7, Table III)", fontsize=11)
+    return save_figure(fig, out_dir, "calibration_nonlinearity.png")
+
+
+def _magnify(ax, bf: BranchFigure) -> None:
+    """Fig. 7(b): a window of ``MAGNIFIED_HALF_WIDTH_NM`` about the largest nonlinearity, its deviation drawn."""
+    k = int(np.argmax(np.abs(bf.nonlinearity_pct_fs)))
+    c, h = bf.level_nm[k], MAGNIFIED_HALF_WIDTH_NM
+    ends = np.interp([c - h, c + h], bf.level_nm, bf.line_nm)
+    ax.set_xlim(c - h, c + h)
+    ax.set_ylim(ends[0] - 0.6 * h, ends[1] + 0.6 * h)
+    ax.annotate("", xy=(c, bf.average_nm[k]), xytext=(c, bf.line_nm[k]),
+                arrowprops={"arrowstyle": "<->", "color": "tab:red", "shrinkA": 0, "shrinkB": 0})
+    ax.text(c + 0.03 * h, 0.5 * (bf.average_nm[k] + bf.line_nm[k]),
+            f" {_nm(abs(bf.nonlinearity_pct_fs[k])):.3f} N·m", color="tab:red", va="center", fontsize=8)
+    ax.set_title(f"(b) magnified around {c:.1f} N·m, the largest deviation from the line")
+
+
+def _deviation_panel(ax, level_nm: np.ndarray, values_pct_fs: np.ndarray, paper_peak: float, title: str) -> None:
+    """A deviation curve [% FS] against torque, its peak marked beside the paper's (dotted, both signs)."""
+    k = int(np.argmax(np.abs(values_pct_fs)))
+    ax.plot(level_nm, values_pct_fs, "o-", ms=3, lw=1.0, label="simulated")
+    ax.plot(level_nm[k], values_pct_fs[k], "s", ms=8, mfc="none", color="tab:red",
+            label=f"peak {abs(values_pct_fs[k]):.4f} % FS at {level_nm[k]:.1f} N·m")
+    for sign in (1, -1):
+        ax.axhline(sign * paper_peak, color="0.4", ls=":",
+                   label=f"paper's peak {paper_peak} % FS" if sign > 0 else None)
+    ax.axhline(0.0, color="0.8", lw=0.6)
+    ax.set(xlabel="MINI85 torque [N·m]", ylabel="deviation [% FS]", title=title)
+    ax.secondary_yaxis("right", functions=(_nm, _pct_fs)).set_ylabel("deviation [N·m]")
+    ax.legend(fontsize=8)
+
+
+def plot_crosstalk_noise(ev: SensorEvaluation, out_dir: Path) -> Path:
+    """Fig. 8(b)-(f): apparent T_z and the channel voltages under T_x and under T_y, each with the applied
+    moment; the no-load output of the LS and the QP calibration."""
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(2, 3, figsize=(18, 10))
+    for col, (axis, letter) in enumerate((("x", "c"), ("y", "d"))):
+        _crosstalk_panel(ax[0, col], ev, axis)
+        _voltage_panel(ax[1, col], ev, axis, letter)
     res = ev.resolution_record
-    for a, cal, name in ((ax[1], ev.ls, "LS"), (ax[2], ev.qp, "QP")):
-        tau = cal.predict(res.voltages_v)
-        a.plot(res.time_s, tau, lw=0.4)
-        a.set(xlabel="time [s]", ylabel="torque [N·m]", title=f"{name}: no load, 3σ = {3 * tau.std(ddof=1):.4f} N·m")
-    paths.append(save_figure(fig, out_dir, "calibration_noise.png"))
-    return paths
+    for a, cal, name, letter in ((ax[0, 2], ev.ls, "ls", "e"), (ax[1, 2], ev.qp, "qp", "f")):
+        a.plot(res.time_s, cal.predict(res.voltages_v), lw=0.4)
+        std, res3 = ev.figures[f"{name}_std_nm"][0], ev.figures[f"{name}_resolution_3sigma_nm"][0]
+        a.set(xlabel="time [s]", ylabel="torque, no load [N·m]",
+              title=f"({letter}) {name.upper()} calibration: no load, 1 kHz, unfiltered\nσ {std:.4f} N·m (paper "
+                    f"{_paper(f'{name}_std_nm')}), 3σ {res3:.4f} N·m (paper "
+                    f"{_paper(f'{name}_resolution_3sigma_nm')})")
+    ax[1, 2].sharey(ax[0, 2])
+    fig.suptitle("Crosstalk and resolution (paper Fig. 8(b)-(f), Table IV, Sec. IV-B)", fontsize=11)
+    return save_figure(fig, out_dir, "calibration_crosstalk_noise.png")
+
+
+def _moment(ev: SensorEvaluation, axis: str) -> np.ndarray:
+    schedule = ev.crosstalk_records[axis].schedule
+    return schedule.tx_nm if axis == "x" else schedule.ty_nm
+
+
+def _twin_moment(ax, time_s: np.ndarray, moment_nm: np.ndarray, axis: str):
+    twin = ax.twinx()
+    twin.plot(time_s, moment_nm, color="0.3", lw=1.2, ls="--", label=f"applied T_{axis} (right axis)")
+    twin.set_ylabel(f"applied T_{axis} [N·m]")
+    return twin
+
+
+def _crosstalk_panel(ax, ev: SensorEvaluation, axis: str) -> None:
+    """Fig. 8(b), one axis: the tared apparent T_z (raw and a running mean), its peak, the applied moment."""
+    rec = ev.crosstalk_records[axis]
+    apparent, xt = crosstalk_trace(ev, axis)
+    n = max(1, round(CROSSTALK_PLOT_MEAN_S / float(rec.time_s[1] - rec.time_s[0])))
+    ax.plot(rec.time_s, apparent, lw=0.3, color="tab:blue", alpha=0.5, label="apparent T_z, 1 kHz samples")
+    ax.plot(rec.time_s[n - 1:], moving_mean(apparent, n), lw=1.2, color="navy",
+            label=f"apparent T_z, {CROSSTALK_PLOT_MEAN_S:g} s mean")
+    ax.plot(rec.time_s[xt.at_index], apparent[xt.at_index], "s", ms=8, mfc="none", color="tab:red",
+            label="largest |apparent T_z|: the crosstalk")
+    paper = _paper(f"crosstalk_t{axis}_pct_fs")
+    for sign in (1, -1):
+        ax.axhline(sign * _nm(paper), color="0.4", ls=":",
+                   label=f"paper's crosstalk {paper} % FS" if sign > 0 else None)
+    ax.set(xlabel="time [s]", ylabel="apparent T_z, tared at no load [N·m]",
+           title=f"(b) crosstalk under T_{axis}: QP output with T_z = 0\n"
+                 f"{xt.crosstalk_pct_fs:.3f} % FS (paper {paper} % FS)")
+    twin = _twin_moment(ax, rec.time_s, _moment(ev, axis), axis)
+    _joint_legend(ax, twin, ncol=2)
+
+
+def _voltage_panel(ax, ev: SensorEvaluation, axis: str, letter: str) -> None:
+    """Fig. 8(c)/(d): each channel's voltage change from its no-load mean under the applied moment."""
+    rec = ev.crosstalk_records[axis]
+    dv_mv = 1e3 * (rec.voltages_v - rec.voltages_v[rec.schedule.branch == 0].mean(axis=0))
+    step = max(1, len(rec.time_s) // 6000)
+    for k in range(dv_mv.shape[1]):
+        ax.plot(rec.time_s[::step], dv_mv[::step, k], lw=0.5, label=f"ch {k + 1}")
+    ax.set(xlabel="time [s]", ylabel="channel voltage change [mV]",
+           title=f"({letter}) channel voltages under T_{axis}\nlargest change {np.abs(dv_mv).max():.0f} mV "
+                 f"(paper about {1e3 * PAPER_CROSSTALK_VOLTAGE_V:.0f} mV)")
+    twin = _twin_moment(ax, rec.time_s, _moment(ev, axis), axis)
+    _joint_legend(ax, twin, ncol=5)
+
+
+def _joint_legend(ax, twin, ncol: int) -> None:
+    """One legend for an axis and its twin, below the axes (clear of the traces)."""
+    handles, labels = ax.get_legend_handles_labels()
+    h2, l2 = twin.get_legend_handles_labels()
+    ax.legend(handles + h2, labels + l2, fontsize=8, ncol=ncol, loc="upper center", bbox_to_anchor=(0.5, -0.13))
 
 
 def main(argv: list[str] | None = None) -> int:

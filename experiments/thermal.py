@@ -24,7 +24,7 @@ from sensor.calibration import FS_NM
 from sensor.chamber import TemperatureRecord, chamber_run, drift_run
 from sensor.drift_fit import DriftFit, DriftModelComparison, compare_drift_models
 from sensor.readout import factory_calibration
-from sim.figures import save_figure
+from sim.figures import moving_mean, save_figure
 from sim.params import TestbedParams
 
 DRIFT_TEST_LOADS_NM = (0.0, 10.0)  # paper Table V
@@ -98,40 +98,72 @@ def _rms(x: np.ndarray) -> float:
 DRIFT_PLOT_MEAN_S = 60.0  # [s] averaging window of the one-hour traces in the figure (display only)
 
 
-def moving_mean(values: np.ndarray, n: int) -> np.ndarray:
-    """Means of every n consecutive samples (len(values) - n + 1 of them)."""
-    c = np.cumsum(np.concatenate([[0.0], np.asarray(values, dtype=float)]))
-    return (c[n:] - c[:-n]) / n
-
-
 def plot_thermal(result: ThermalExperiment, reference_c: float, out_dir: Path) -> list[Path]:
-    """Figure like the paper's Fig. 9: drift against temperature with the fits; the one-hour tests."""
+    """Figure like the paper's Fig. 9(b)-(d): drift against temperature with the fits; the one-hour tests at
+    0 and 10 N·m, each above the board and room temperature it ran at."""
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    fig, ax = plt.subplots(1, 3, figsize=(15, 4))
+    fig = plt.figure(figsize=(17, 7))
+    grid = fig.add_gridspec(2, 3, height_ratios=(3, 1))
+    _plot_chamber(fig.add_subplot(grid[:, 0]), result)
+    for col, (load, letter) in enumerate(zip(result.drift_tests, "cd", strict=True), start=1):
+        torque_ax = fig.add_subplot(grid[0, col])
+        _plot_drift_test(torque_ax, fig.add_subplot(grid[1, col], sharex=torque_ax), result, load, reference_c,
+                         letter)
+    fig.suptitle("Temperature compensation (paper Fig. 9(b)-(d), Table V)", fontsize=11)
+    return [save_figure(fig, out_dir, "thermal_drift.png")]
+
+
+def _plot_chamber(ax, result: ThermalExperiment) -> None:
+    """Fig. 9(b): the zero output against the TMP117 reading in the chamber, and each drift model's fit."""
     ch = result.chamber
-    ax[0].plot(ch.tmp117_c, ch.tau_sensor_nm, ".", ms=1, color="0.6", label="chamber samples")
+    ax.plot(ch.tmp117_c, ch.tau_sensor_nm, ".", ms=1, color="0.6", label="chamber samples (1 per s)")
     grid = np.linspace(ch.tmp117_c.min(), ch.tmp117_c.max(), 300)
     for name, fit in result.models.fits.items():
-        ax[0].plot(grid, fit.predict(grid), label=f"{name} (RMS {fit.rmse_nm:.4f} N·m)")
-    ax[0].set(xlabel="TMP117 temperature [°C]", ylabel="zero output [N·m]", title="zero drift (chamber)")
-    ax[0].legend(fontsize=7)
+        ax.plot(grid, fit.predict(grid), ls="--" if name == "rational" else "-",
+                color="k" if name == "rational" else None, label=f"{name} fit (RMS {fit.rmse_nm:.4f} N·m)")
+    per_k = result.figures_by_name["drift_per_kelvin_pct_fs"][0]
+    ax.set(xlabel="TMP117 board temperature [°C]", ylabel="zero output [N·m]",
+           title=f"(b) zero drift in the chamber, -10 to 50 °C;\nlargest drift per 1 °C over the 1-h tests' "
+                 f"range:\n{per_k:.4f} % FS (paper about 0.014 % FS)")
+    ax.legend(fontsize=8, markerscale=6)
+
+
+def _plot_drift_test(ax, temp_ax, result: ThermalExperiment, load: float, reference_c: float, letter: str) -> None:
+    """Fig. 9(c)/(d): one hour under ``load``: every sample faint and each trace's running mean, against the
+    MINI85; below, the board (TMP117) and room temperature."""
+    from matplotlib.lines import Line2D
+
+    rec = result.drift_tests[load]
+    minutes = rec.time_s / 60.0
+    # The samples' noise hides the drift: faint samples, and each trace's mean over DRIFT_PLOT_MEAN_S.
+    n = max(1, round(DRIFT_PLOT_MEAN_S / float(np.median(np.diff(rec.time_s)))))
     rational = result.models.fits["rational"]
-    for a, (load, rec) in zip(ax[1:], result.drift_tests.items(), strict=True):
-        minutes = rec.time_s / 60.0
-        # The samples' noise hides the drift: faint samples, and each trace's mean over DRIFT_PLOT_MEAN_S.
-        n = max(1, round(DRIFT_PLOT_MEAN_S / float(np.median(np.diff(rec.time_s)))))
-        for values, colour, label in ((rec.tau_sensor_nm, "tab:blue", "uncompensated"),
-                                      (compensate(rec, rational, reference_c), "tab:red", "compensated"),
-                                      (rec.tau_reference_nm, "k", "MINI85")):
-            a.plot(minutes, values, lw=0.2, color=colour, alpha=0.15)
-            a.plot(minutes[n - 1:], moving_mean(values, n), lw=1.4, color=colour,
-                   label=f"{label} ({DRIFT_PLOT_MEAN_S:g} s mean)")
-        a.set(xlabel="time [min]", ylabel="torque [N·m]", title=f"one hour at {load:g} N·m")
-        a.legend(fontsize=7)
-    return [save_figure(fig, out_dir, "thermal_drift.png")]
+    for values, colour, label in ((rec.tau_sensor_nm, "tab:blue", "uncompensated"),
+                                  (compensate(rec, rational, reference_c), "tab:red", "compensated (Eq. 20)"),
+                                  (rec.tau_reference_nm, "k", "MINI85")):
+        ax.plot(minutes, values, lw=0.2, color=colour, alpha=0.15)
+        ax.plot(minutes[n - 1:], moving_mean(values, n), lw=1.4, color=colour,
+                label=f"{label}, {DRIFT_PLOT_MEAN_S:g} s mean")
+    period = float(rec.time_s[1] - rec.time_s[0])
+    handles, _ = ax.get_legend_handles_labels()
+    handles.append(Line2D([], [], color="0.5", lw=4, alpha=0.3,
+                          label=f"shading: every sample ({period:g} s), same colours"))
+    ax.legend(handles=handles, fontsize=8, loc="upper left")
+    tag = f"{load:g}nm"
+    rms = {k: result.figures_by_name[f"drift_rms_{tag}_{k}"][0] for k in ("uncompensated", "compensated")}
+    paper = {k: next(v for name, *_, v in PAPER_FIGURES if name == f"drift_rms_{tag}_{k}") for k in rms}
+    ax.set(ylabel="torque [N·m]",
+           title=f"({letter}) one hour at {load:g} N·m; RMS error against the MINI85:\n"
+                 f"uncompensated {rms['uncompensated']:.4f} N·m (paper {paper['uncompensated']}),\n"
+                 f"compensated {rms['compensated']:.4f} N·m (paper {paper['compensated']})")
+    ax.tick_params(labelbottom=False)
+    temp_ax.plot(minutes, rec.tmp117_c, color="tab:purple", lw=1.0, label="board (TMP117)")
+    temp_ax.plot(minutes, rec.ambient_c, color="tab:green", lw=1.0, ls="--", label="room air")
+    temp_ax.set(xlabel="time [min]", ylabel="temperature [°C]")
+    temp_ax.legend(fontsize=8, loc="upper left")
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -251,7 +251,7 @@ def plot_crosstalk_noise(ev: SensorEvaluation, out_dir: Path) -> Path:
         std, res3 = ev.figures[f"{name}_std_nm"][0], ev.figures[f"{name}_resolution_3sigma_nm"][0]
         a.set(xlabel="time [s]", ylabel="torque, no load [N·m]",
               title=f"({letter}) {name.upper()} calibration: no load, 1 kHz, unfiltered\nσ {std:.4f} N·m (paper "
-                    f"{_paper(f'{name}_std_nm')}), 3σ {res3:.4f} N·m (paper "
+                    f"{_paper(f'{name}_std_nm')}),\n3σ {res3:.4f} N·m (paper "
                     f"{_paper(f'{name}_resolution_3sigma_nm')})")
     ax[1, 2].sharey(ax[0, 2])
     fig.suptitle("Crosstalk and resolution (paper Fig. 8(b)-(f), Table IV, Sec. IV-B)", fontsize=11)

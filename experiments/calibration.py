@@ -19,7 +19,8 @@ from typing import Any
 import numpy as np
 
 from experiments.common import (TARGET_RATIO, add_output_args, add_params_arg, add_rerun_args, cli_parser, format_rows,
-                                load_params_arg, record_log, record_rerun, run_errors, seed_arg, write_outputs)
+                                load_params_arg, paper_row, record_log, record_rerun, run_errors, seed_arg,
+                                write_outputs)
 from sensor import metrics
 from sensor.calibration import FS_NM
 from sensor.evaluation import SensorEvaluation, evaluate_sensor
@@ -47,9 +48,9 @@ PAPER_FIGURES: tuple[tuple[str, str, str, str, float], ...] = (
 
 def comparison_rows(figures: dict[str, tuple[float, str]],
                     paper: tuple[tuple[str, str, str, str, float], ...]) -> list[dict[str, Any]]:
-    """Rows ``{table, quantity, unit, paper, sim, ratio}`` (ratio = sim / paper) for the named figures."""
-    return [{"table": table, "quantity": quantity, "unit": unit, "paper": value, "sim": figures[name][0],
-             "ratio": figures[name][0] / value} for name, table, quantity, unit, value in paper]
+    """Rows ``{table, quantity, unit, paper, sim, ratio}`` (ratio = sim / paper; None for a figure not
+    simulated, ``figures[name][0]`` None) for the named figures."""
+    return [paper_row(table, quantity, unit, value, figures[name][0]) for name, table, quantity, unit, value in paper]
 
 
 @dataclass(frozen=True)

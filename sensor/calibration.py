@@ -214,7 +214,8 @@ class SolveDiagnostics:
     feasibility_tol_nm : float
         Tolerance of the bound check [N m].
     solve_time_s : float
-        Wall time of the fit [s].
+        Wall time of the fit [s]. Kept for benchmarks and printing only: it differs from run to run, so it
+        is left out of comparisons (``==``) and of :meth:`to_dict` (the same seed gives the same JSON).
     """
 
     solver: str
@@ -226,7 +227,13 @@ class SolveDiagnostics:
     quiet_std_nm: float | None
     objective_nm2: float
     feasibility_tol_nm: float
-    solve_time_s: float
+    solve_time_s: float = field(default=math.nan, compare=False)
+
+    def to_dict(self) -> dict[str, Any]:
+        """JSON-ready dictionary of the deterministic fields (everything but ``solve_time_s``)."""
+        d = asdict(self)
+        del d["solve_time_s"]
+        return d
 
 
 @dataclass(frozen=True, eq=False)
@@ -290,12 +297,13 @@ class Calibration:
             "fs_nm": self.fs_nm,
             "n_samples": self.n_samples,
             "n_quiet": self.n_quiet,
-            "diagnostics": asdict(self.diagnostics),
+            "diagnostics": self.diagnostics.to_dict(),
         }
 
     @classmethod
     def from_dict(cls, d: dict[str, Any]) -> "Calibration":
-        """Rebuild a :class:`Calibration` from :meth:`to_dict` output."""
+        """Rebuild a :class:`Calibration` from :meth:`to_dict` output (``diagnostics.solve_time_s`` is NaN:
+        wall times are not serialised; a dictionary that still carries one keeps it)."""
         return cls(theta=np.asarray(d["theta"], dtype=float), method=d["method"],
                    gamma=float(d["gamma"]),
                    e_max_nm=None if d["e_max_nm"] is None else float(d["e_max_nm"]),

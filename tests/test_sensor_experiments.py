@@ -61,6 +61,12 @@ def test_evaluation_is_deterministic_for_a_seed():
     assert a.figures == b.figures
 
 
+def test_evaluation_dict_is_identical_for_a_seed():
+    """Same parameters and seed: the JSON of two runs is byte-identical (no wall times in it)."""
+    a, b = (json.dumps(evaluate_sensor(seed=3).to_dict()) for _ in range(2))
+    assert a == b
+
+
 def test_chamber_board_settles_at_the_set_point_plus_the_mcu_rise():
     """At the end of each 20 min hold the TMP117 reads the network's steady state within 0.05 K."""
     from sim.thermal import ThermalState

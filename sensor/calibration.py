@@ -161,6 +161,31 @@ HIGHS_TOLERANCE = 1e-9
 value HiGHS accepts, its simplex sometimes stops on numerical difficulties)."""
 
 
+# Tolerances of the KKT polish of a small QP (``_polish``) and of the exact LDP fallback (``_project_ldp``).
+POLISH_MULTIPLIER_RTOL = 1e-9
+"""A row of a small QP counts as active when its multiplier exceeds this times the largest multiplier
+(or 1), and a polished active set is rejected when a multiplier falls below minus this times the largest:
+ProxQP's multipliers at ``PROXQP_EPS_ABS`` are accurate to far better than 1e-9 relative of the largest."""
+
+POLISH_KKT_RTOL = 1e-9
+"""The equality-constrained KKT system of a polished active set is accepted as consistent when its
+least-squares solution reproduces the right-hand side to this relative (and ``1e-9 * max|rhs|`` absolute)
+accuracy; a larger misfit means dependent rows with conflicting bounds, and the unpolished point is kept."""
+
+POLISH_PRIMAL_TOL_FRACTION = 1e-3
+"""A row outside the polished active set counts as violated when it exceeds its bound by more than this
+fraction of the feasibility tolerance (``FEASIBILITY_TOL_FRACTION_FS * fs_nm``): the polished point then
+meets the cutting plane's acceptance test with a 1000x margin."""
+
+LDP_NNLS_MAXITER_PER_ROW = 50
+"""Iteration cap of ``scipy.optimize.nnls`` in the LDP fallback, per constraint row (scipy's default is 3
+per column; Lawson-Hanson adds or drops one row per iteration, and degenerate working sets cycle longer)."""
+
+LDP_INCOMPATIBLE_TOL = 1e-14
+"""The LDP's NNLS residual component ``r[n] = (f^T u - 1)`` at or below this in magnitude means
+``[E^T; f^T] u = e_{n+1}`` is solved exactly, i.e. the constraints are incompatible (Lawson & Hanson,
+ch. 23); for a compatible set ``|r[n]|`` is of order 1, so 1e-14 (~50 float64 epsilons) separates the two."""
+
 class InfeasibleCalibrationError(ValueError):
     """No ``theta`` satisfies ``|A theta - y| <= e_max`` on every sample.
 
@@ -214,7 +239,8 @@ class SolveDiagnostics:
     feasibility_tol_nm : float
         Tolerance of the bound check [N m].
     solve_time_s : float
-        Wall time of the fit [s].
+        Wall time of the fit [s]. Kept for benchmarks and printing only: it differs from run to run, so it
+        is left out of comparisons (``==``) and of :meth:`to_dict` (the same seed gives the same JSON).
     """
 
     solver: str
@@ -226,7 +252,13 @@ class SolveDiagnostics:
     quiet_std_nm: float | None
     objective_nm2: float
     feasibility_tol_nm: float
-    solve_time_s: float
+    solve_time_s: float = field(default=math.nan, compare=False)
+
+    def to_dict(self) -> dict[str, Any]:
+        """JSON-ready dictionary of the deterministic fields (everything but ``solve_time_s``)."""
+        d = asdict(self)
+        del d["solve_time_s"]
+        return d
 
 
 @dataclass(frozen=True, eq=False)
@@ -290,12 +322,13 @@ class Calibration:
             "fs_nm": self.fs_nm,
             "n_samples": self.n_samples,
             "n_quiet": self.n_quiet,
-            "diagnostics": asdict(self.diagnostics),
+            "diagnostics": self.diagnostics.to_dict(),
         }
 
     @classmethod
     def from_dict(cls, d: dict[str, Any]) -> "Calibration":
-        """Rebuild a :class:`Calibration` from :meth:`to_dict` output."""
+        """Rebuild a :class:`Calibration` from :meth:`to_dict` output (``diagnostics.solve_time_s`` is NaN:
+        wall times are not serialised; a dictionary that still carries one keeps it)."""
         return cls(theta=np.asarray(d["theta"], dtype=float), method=d["method"],
                    gamma=float(d["gamma"]),
                    e_max_nm=None if d["e_max_nm"] is None else float(d["e_max_nm"]),
@@ -887,7 +920,7 @@ def _polish(p: np.ndarray, q: np.ndarray, g: np.ndarray, h: np.ndarray, z: np.nd
     if lam is None or lam.size == 0:
         return z
     lam_scale = max(1.0, float(np.max(np.abs(lam))))
-    active = np.flatnonzero(lam > 1e-9 * lam_scale)
+    active = np.flatnonzero(lam > POLISH_MULTIPLIER_RTOL * lam_scale)
     for _ in range(10):
         m = active.size
         kkt = np.zeros((n + m, n + m))
@@ -897,12 +930,13 @@ def _polish(p: np.ndarray, q: np.ndarray, g: np.ndarray, h: np.ndarray, z: np.nd
         rhs = np.concatenate([-q, h[active]])
         sol = np.linalg.lstsq(kkt, rhs, rcond=None)[0]
         zz, mu = sol[:n], sol[n:]
-        if not np.allclose(kkt @ sol, rhs, rtol=1e-9, atol=1e-9 * max(1.0, np.max(np.abs(rhs)))):
+        if not np.allclose(kkt @ sol, rhs, rtol=POLISH_KKT_RTOL,
+                           atol=POLISH_KKT_RTOL * max(1.0, np.max(np.abs(rhs)))):
             return z  # inconsistent (dependent rows with conflicting bounds)
         slack = g @ zz - h
-        bad_primal = np.setdiff1d(np.flatnonzero(slack > 1e-3 * tol), active)
+        bad_primal = np.setdiff1d(np.flatnonzero(slack > POLISH_PRIMAL_TOL_FRACTION * tol), active)
         mu_scale = max(1.0, float(np.max(np.abs(mu), initial=0.0)))
-        bad_dual = active[mu < -1e-9 * mu_scale]
+        bad_dual = active[mu < -POLISH_MULTIPLIER_RTOL * mu_scale]
         if bad_primal.size == 0 and bad_dual.size == 0:
             return zz
         active = np.union1d(np.setdiff1d(active, bad_dual), bad_primal)
@@ -923,9 +957,9 @@ def _project_ldp(d: np.ndarray, g: np.ndarray, h: np.ndarray) -> tuple[np.ndarra
     mat = np.vstack([e.T, f[None, :]])
     rhs = np.zeros(n + 1)
     rhs[n] = 1.0
-    u, _ = scipy.optimize.nnls(mat, rhs, maxiter=50 * mat.shape[1])
+    u, _ = scipy.optimize.nnls(mat, rhs, maxiter=LDP_NNLS_MAXITER_PER_ROW * mat.shape[1])
     r = mat @ u - rhs
-    if abs(r[n]) <= 1e-14:
+    if abs(r[n]) <= LDP_INCOMPATIBLE_TOL:
         raise RuntimeError("least-distance projection: constraints incompatible")
     x = -r[:n] / r[n]
     return d + x, 2.0 * u / abs(r[n])

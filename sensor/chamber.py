@@ -15,7 +15,7 @@ import numpy as np
 
 from models.gim8108_testbed.derived import derive
 from sensor.calibration import Calibration
-from sensor.photoreflector import PhotoReflectorArray, reference_torque
+from sensor.photoreflector import PhotoReflectorArray, check_params, reference_torque
 from sim.params import TestbedParams
 from sim.thermal import ThermalState
 
@@ -78,7 +78,30 @@ def chamber_run(params: TestbedParams, calibration: Calibration, seed: int = 0,
                 log_period_s: float = CHAMBER_LOG_PERIOD_S) -> TemperatureRecord:
     """The chamber protocol with no load: each set point held for ``hold_s`` [s], the board starting in
     equilibrium with the first set point (ideal chamber: the air follows the set point at once; the
-    thermal parameters are those of :func:`chamber_params`)."""
+    thermal parameters are those of :func:`chamber_params`).
+
+    Parameters
+    ----------
+    params : TestbedParams
+        Parameter set of the rig (the chamber's thermal changes are applied here); checked by
+        :func:`sensor.photoreflector.check_params` first.
+    calibration : Calibration
+        Voltages [V] to torque [N·m], e.g. :func:`sensor.readout.factory_calibration`.
+    seed : int
+        Seed of the channel and MINI85 noise.
+    setpoints_c : tuple of float
+        Chamber set points [°C], in order.
+    hold_s : float
+        Hold time of each set point [s].
+    log_period_s : float
+        Time between logged samples [s].
+
+    Returns
+    -------
+    TemperatureRecord
+        One row per logged sample (``len(setpoints_c) * round(hold_s / log_period_s)`` rows), no load.
+    """
+    check_params(params)
     n_hold = round(hold_s / log_period_s)
     ambient = np.repeat(np.asarray(setpoints_c, dtype=float), n_hold)
     return _run(chamber_params(params), calibration, seed, ambient, 0.0, log_period_s, initial_board_c=None)
@@ -88,7 +111,31 @@ def drift_run(params: TestbedParams, calibration: Calibration, tau_nm: float, se
               duration_s: float = DRIFT_TEST_S, ambient_rise_c: float = DRIFT_AMBIENT_RISE_C,
               log_period_s: float = DRIFT_LOG_PERIOD_S) -> TemperatureRecord:
     """One hour under a held torque [N·m] at room temperature: the board starts at the calibration
-    temperature, in equilibrium, and the room warms linearly by ``ambient_rise_c`` [°C]."""
+    temperature, in equilibrium, and the room warms linearly by ``ambient_rise_c`` [°C].
+
+    Parameters
+    ----------
+    params : TestbedParams
+        Parameter set; checked by :func:`sensor.photoreflector.check_params` first.
+    calibration : Calibration
+        Voltages [V] to torque [N·m], e.g. :func:`sensor.readout.factory_calibration`.
+    tau_nm : float
+        The held torque [N·m] (the paper: 0 and 10 N·m).
+    seed : int
+        Seed of the channel and MINI85 noise.
+    duration_s : float
+        Length of the test [s].
+    ambient_rise_c : float
+        Rise of the room temperature over the test [°C].
+    log_period_s : float
+        Time between logged samples [s].
+
+    Returns
+    -------
+    TemperatureRecord
+        ``round(duration_s / log_period_s)`` rows.
+    """
+    check_params(params)
     n = round(duration_s / log_period_s)
     start = ThermalState(params.thermal)
     rise_mcu = start.board_c - start.ambient_c  # the MCU keeps the board above ambient

@@ -21,7 +21,7 @@ import numpy as np
 from sensor import metrics
 from sensor.calibration import (MIN_QUIET_SAMPLES, Calibration, GammaSelection, fit_least_squares,
                                 quiet_segment_mask, select_gamma)
-from sensor.photoreflector import PhotoReflectorArray
+from sensor.photoreflector import PhotoReflectorArray, check_params
 from sensor.protocol import (CALIBRATION_CYCLES, PRELOAD_LABEL, RigRecord, calibration_schedule, crosstalk_schedule, record,
                              resolution_schedule)
 from sim.params import TestbedParams
@@ -71,6 +71,22 @@ def leading_quiet_segment(tau_ref_nm: np.ndarray) -> np.ndarray:
     Only one no-load segment is used: later ones follow loading cycles of either sign and carry the
     remanent slip of the target's joint, an offset that would count as "noise" in a pooled variance and
     make the penalty fight hysteresis instead of noise.
+
+    Parameters
+    ----------
+    tau_ref_nm : numpy.ndarray, shape (N,)
+        Reference torque of the calibration record [N·m].
+
+    Returns
+    -------
+    numpy.ndarray of bool, shape (N,)
+        True on the first run of samples with ``|tau_ref| <= QUIET_TAU_THRESHOLD_NM``.
+
+    Raises
+    ------
+    ValueError
+        If that run is shorter than ``MIN_QUIET_SAMPLES`` (a noisy reference breaks it up; the parameter-set
+        form of this is caught earlier by :func:`sensor.photoreflector.check_params`).
     """
     mask = quiet_segment_mask(tau_ref_nm)
     start = int(np.argmax(mask))
@@ -98,6 +114,19 @@ def calibrate(torque_record: RigRecord, moment_records: list[RigRecord]) -> RigC
 
     The moment records are part of the calibration data: the paper uses the redundant channels to reduce
     crosstalk, which a fit can only do if it sees the off-axis moments.
+
+    Parameters
+    ----------
+    torque_record : RigRecord
+        The T_z loading record (:func:`sensor.protocol.calibration_schedule`); its leading no-load segment
+        is the QP's quiet segment I_0. Voltages [V], MINI85 torque [N·m].
+    moment_records : list of RigRecord
+        The T_x / T_y moment records (T_z = 0), appended to the data; not part of I_0.
+
+    Returns
+    -------
+    RigCalibration
+        LS (Eq. 11) and QP (Eq. 17; gamma by the paper's criterion with lambda = 9) on the same data.
     """
     records = [torque_record, *moment_records]
     v = np.vstack([r.voltages_v for r in records])
@@ -120,8 +149,34 @@ def _repeatability_per_series(ref: np.ndarray, out: np.ndarray, cycle: np.ndarra
 
 
 def resolution_gain(params: TestbedParams | None = None, seed: int = 0) -> tuple[float, float]:
-    """(LS std, QP std) [N·m] on a 10 s no-load record after calibrating: the resolution comparison alone."""
+    """The resolution comparison alone: LS and QP std on a 10 s no-load record after calibrating.
+
+    The same records (calibration, moments, no load) as :func:`evaluate_sensor` for the same seed, without
+    the evaluation session, so the ratio ``ls_std / qp_std`` equals its ``qp_improvement``.
+
+    Parameters
+    ----------
+    params : TestbedParams, optional
+        Parameter set (defaults if None); checked by :func:`sensor.photoreflector.check_params` first.
+    seed : int
+        Seed of every noise draw of the run.
+
+    Returns
+    -------
+    tuple of float
+        ``(ls_std_nm, qp_std_nm)`` [N·m], sample std (ddof = 1) of each calibration's output. Both are 0 for a
+        noise-free sensor (``noise_min_v = noise_max_v = 0``: the quantised no-load voltages are constant), where
+        the ratio is undefined: use :func:`improvement_ratio`, which gives NaN there.
+
+    Raises
+    ------
+    sim.params.ParameterError
+        If the sensor parameters cannot work together (:func:`sensor.photoreflector.check_params`).
+    sensor.calibration.InfeasibleCalibrationError
+        If no calibration meets the paper's error bound on the calibration record.
+    """
     params = params or TestbedParams()
+    check_params(params)
     seeds = dict(zip(_STREAMS, np.random.SeedSequence(seed).spawn(len(_STREAMS)), strict=True))
     runs = {}
     for name, schedule_of in (("calibration", calibration_schedule), ("resolution", resolution_schedule),
@@ -134,17 +189,37 @@ def resolution_gain(params: TestbedParams | None = None, seed: int = 0) -> tuple
     return (metrics.resolution_3sigma(rig.ls.predict(v)).std_nm, metrics.resolution_3sigma(rig.qp.predict(v)).std_nm)
 
 
+def improvement_ratio(ls_std_nm: float, qp_std_nm: float) -> float:
+    """The QP's resolution gain over LS, ``ls_std / qp_std`` [1]; NaN where it is undefined (a QP std of 0,
+    as a noise-free sensor gives)."""
+    return ls_std_nm / qp_std_nm if qp_std_nm > 0.0 else float("nan")
+
+
 def evaluate_sensor(params: TestbedParams | None = None, seed: int = 0) -> SensorEvaluation:
     """Calibrate and evaluate the sensor unit of ``params`` (``photoreflector.unit_seed``).
 
     Parameters
     ----------
     params : TestbedParams, optional
-        Parameter set (defaults if None).
+        Parameter set (defaults if None); checked by :func:`sensor.photoreflector.check_params` first.
     seed : int
         Seed of every noise draw of the run (channels and MINI85), split into independent streams.
+
+    Returns
+    -------
+    SensorEvaluation
+        Both calibrations, the gamma selection, the records, and ``figures`` (name -> (value, unit): % FS,
+        N·m, or 1 for ``qp_improvement``, which is NaN for a noise-free sensor whose QP std is 0).
+
+    Raises
+    ------
+    sim.params.ParameterError
+        If the sensor parameters cannot work together (:func:`sensor.photoreflector.check_params`).
+    sensor.calibration.InfeasibleCalibrationError
+        If no calibration meets the paper's error bound on the calibration record.
     """
     params = params or TestbedParams()
+    check_params(params)
     seeds = dict(zip(_STREAMS, np.random.SeedSequence(seed).spawn(len(_STREAMS)), strict=True))
 
     def run(name: str, schedule_of) -> RigRecord:
@@ -181,6 +256,6 @@ def evaluate_sensor(params: TestbedParams | None = None, seed: int = 0) -> Senso
         "ls_resolution_3sigma_nm": (res_ls.resolution_3sigma_nm, "N·m"),
         "qp_std_nm": (res_qp.std_nm, "N·m"),
         "qp_resolution_3sigma_nm": (res_qp.resolution_3sigma_nm, "N·m"),
-        "qp_improvement": (res_ls.std_nm / res_qp.std_nm, "1"),
+        "qp_improvement": (improvement_ratio(res_ls.std_nm, res_qp.std_nm), "1"),
     }
     return SensorEvaluation(ls, qp, selection, figures, cal_rec, ev, xt, res_rec)

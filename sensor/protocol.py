@@ -124,7 +124,24 @@ class RigRecord:
 
 def record(schedule: Schedule, sensor: PhotoReflectorArray, rng: np.random.Generator,
            temperature_c: np.ndarray | float | None = None) -> RigRecord:
-    """Read the sensor and the reference through a schedule (the sensor's state carries over between calls)."""
+    """Read the sensor and the reference through a schedule (the sensor's state carries over between calls).
+
+    Parameters
+    ----------
+    schedule : Schedule
+        Applied T_z, T_x, T_y per sample [N·m].
+    sensor : PhotoReflectorArray
+        The sensor unit; its sample period sets the time axis.
+    rng : numpy.random.Generator
+        Draws the MINI85's noise.
+    temperature_c : (N,) array or float, optional
+        Board temperature [°C] (the calibration temperature if None).
+
+    Returns
+    -------
+    RigRecord
+        Time [s] (first sample at one period), channel voltages (N, 8) [V], MINI85 reading and applied T_z [N·m].
+    """
     params: TestbedParams = sensor.params
     twist = schedule.tz_nm / derive(params).flexure_stiffness_nm_per_rad
     v = sensor.read(twist, schedule.tx_nm, schedule.ty_nm, temperature_c)

@@ -17,7 +17,7 @@ import numpy as np
 
 from sensor.calibration import Calibration
 from sensor.evaluation import calibrate
-from sensor.photoreflector import CHANNELS, PhotoReflectorArray
+from sensor.photoreflector import CHANNELS, PhotoReflectorArray, check_params
 from sensor.protocol import calibration_schedule, crosstalk_schedule, record
 from sim.params import TestbedParams
 
@@ -38,10 +38,23 @@ def factory_calibration(params: TestbedParams | None = None, method: Literal["ls
         The paper's QP (Eq. 17, gamma by its criterion) or least squares (Eq. 11).
     seed : int
         Seed of the calibration record's noise (channels and reference).
+
+    Returns
+    -------
+    Calibration
+        Eq. 10's coefficients: channel voltages [V] to joint torque [N·m].
+
+    Raises
+    ------
+    sim.params.ParameterError
+        If the sensor parameters cannot work together (:func:`sensor.photoreflector.check_params`).
+    sensor.calibration.InfeasibleCalibrationError
+        If the QP finds no calibration within the paper's error bound.
     """
     if method not in ("ls", "qp"):
         raise ValueError(f"method = {method!r}: valid values are 'ls', 'qp'")
     params = params or TestbedParams()
+    check_params(params)
     streams = np.random.SeedSequence(seed).spawn(3)
 
     def run(stream, schedule):

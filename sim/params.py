@@ -250,9 +250,14 @@ class PhotoReflectorParams:
     operating_point_spread_v: float = quantity(
         0.15, "V", "assumed: unit-to-unit spread of the operating point (mounting gap tolerance)", 0.0, 1.0)
     noise_min_v: float = quantity(
-        2.4e-4, "V", "tuned: quietest channel's white-noise std; the 4x spread to noise_max_v makes the "
-        "LS/QP resolution ratio of the paper (Sec. IV-B) possible", 0.0, 1.0)
-    noise_max_v: float = quantity(9.6e-4, "V", "tuned: noisiest channel's white-noise std", 0.0, 1.0)
+        2.4e-4, "V", "tuned: quietest channel's white-noise std; with noise_max_v it sets the LS and QP stds of the "
+        "resolution comparison (Sec. IV-B). The 4x spread to noise_max_v is assumed and is not what makes the "
+        "QP's gain over LS: with all channels at 0.5 mV the gain is 2.9-3.2x (units 1000-1005, seeds 0-5; "
+        "default spread 3.0-3.5x); the gain comes from the slip fractions' spread (slip_fraction_max). Plausible "
+        "range assumed for tests: 0.15-0.4 mV", 0.0, 1.0)
+    noise_max_v: float = quantity(
+        9.6e-4, "V", "tuned: noisiest channel's white-noise std; plausible range assumed for tests: 1-6x "
+        "noise_min_v (the TCRT1000's channel-to-channel noise spread is not in the paper)", 0.0, 1.0)
     slip_twist_max_rad: float = quantity(
         0.0103, "rad", "assumed: largest breakaway twist of the Maxwell-slip elements of the target's bolted "
         "joint, half the ±25 N·m calibration span at K_t (12.5 N·m), so loops over the calibration protocol "
@@ -262,7 +267,12 @@ class PhotoReflectorParams:
         "hysteresis is 0.139 % FS (Table III)", 0.0, 1.0)
     slip_fraction_max: float = quantity(
         0.0165, "1", "tuned: largest such fraction; channels differ because the slip of the reflective target is "
-        "not a pure rotation (eccentric micro-slip seen differently at each reflector)", 0.0, 1.0)
+        "not a pure rotation (eccentric micro-slip seen differently at each reflector). This spread is what gives "
+        "the QP its resolution gain over LS (Sec. IV-B): LS weights the channels so that the slip, seen in unequal "
+        "fractions, cancels in the output, and pays for it in noise; the QP's quiet-segment penalty trades the "
+        "noise back. With equal fractions no weighting cancels the slip and the gain is 1.01-1.07x (units "
+        "1000-1005, seeds 0-5, default noise spread; docs/issue3_figures.md). Plausible range assumed for "
+        "tests: 0.3-0.6 % for slip_fraction_min, 2-4x that for the largest", 0.0, 1.0)
     quartic_fraction_max: float = quantity(
         0.004, "1", "tuned: |quartic term| of the optical response up to this fraction of the linear one at the "
         "calibration span: curvature beyond the cubic basis of Eq. 10, which the paper's 0.111 % FS "

@@ -157,3 +157,36 @@ def test_reference_torque_is_quantised_to_the_mini85_resolution():
     res = 7 / 748
     assert np.allclose(ref / res, np.rint(ref / res))
     assert ref.mean() == pytest.approx(3.0, abs=0.001)
+
+
+@pytest.mark.parametrize("read_path", ["read", "read_sample_list"])
+def test_sensing_chain_step_response_is_the_first_order_closed_form_at_the_samples(read_path):
+    """At 50 Hz bandwidth a voltage step passes through the chain as V_b + (V_a - V_b) exp(-(t - t_step)/τ),
+    τ = 1/(2π f_c), at every sample (the input held over each sample period, as the chain's discretisation
+    assumes; noise off, 32-bit ADC, no slip so the analog levels are the ideal voltages)."""
+    f_c, dt = 50.0, 1e-3
+    p = P.replace(photoreflector={"bandwidth_hz": f_c, "noise_min_v": 0.0, "noise_max_v": 0.0, "adc_bits": 32,
+                                  "slip_fraction_min": 0.0, "slip_fraction_max": 0.0})
+    sensor = PhotoReflectorArray(p, sample_period_s=dt)
+    n_before, n_after = 20, 200
+    tw = np.concatenate([np.zeros(n_before), np.full(n_after, twist(10.0))])
+    if read_path == "read":
+        v = sensor.read(tw)
+    else:
+        v = np.array([sensor.read_sample_list(x) for x in tw])
+    v_a, v_b = sensor.ideal_voltages(twist([0.0, 10.0]))
+    # the step is applied over the period that ends at sample n_before: t - t_step = (k - n_before + 1) dt
+    k = np.arange(n_after)
+    expected = v_b + (v_a - v_b) * np.exp(-2 * np.pi * f_c * (k + 1) * dt)[:, None]
+    np.testing.assert_allclose(v[:n_before], np.broadcast_to(v_a, (n_before, CHANNELS)), rtol=0, atol=2 * sensor.lsb_v)
+    np.testing.assert_allclose(v[n_before:], expected, rtol=0, atol=2 * sensor.lsb_v)
+    assert np.all(np.abs(v[n_before] - v_b) > 0.5 * np.abs(v_a - v_b))     # the chain visibly lags
+
+
+def test_the_default_5_khz_chain_settles_within_one_1_khz_sample():
+    """At the paper's ~5 kHz (Table II) the chain's exp(-2π f_c dt) = 2e-14: a step shows in full at once."""
+    p = P.replace(photoreflector={"noise_min_v": 0.0, "noise_max_v": 0.0, "adc_bits": 32,
+                                  "slip_fraction_min": 0.0, "slip_fraction_max": 0.0})
+    sensor = PhotoReflectorArray(p)
+    v = sensor.read(np.array([0.0, twist(10.0)]))
+    np.testing.assert_allclose(v[1], sensor.ideal_voltages(twist([10.0]))[0], rtol=0, atol=2 * sensor.lsb_v)

@@ -15,6 +15,7 @@ import numpy as np
 from models.gim8108_testbed.build import build_xml
 from models.gim8108_testbed.derived import FIXTURES
 from sensor.calibration import InfeasibleCalibrationError
+from sensor.photoreflector import check_params as check_sensor_params
 from sim.params import ParameterError, TestbedParams, load_params
 
 
@@ -29,14 +30,17 @@ def add_params_arg(parser: argparse.ArgumentParser) -> None:
                         help="TOML file overriding parameters, e.g. [friction] breakaway_torque_nm = 0.2")
 
 
-def load_params_arg(parser: argparse.ArgumentParser, args: argparse.Namespace, checks=()) -> TestbedParams:
+def load_params_arg(parser: argparse.ArgumentParser, args: argparse.Namespace, checks=(), *,
+                    uses_sensor: bool = True) -> TestbedParams:
     """Load --params and check the output flags, before anything runs.
 
     A bad file, or a parameter set the testbed's model cannot be built from (a constraint between fields), or
-    one that a callable of ``checks`` (``check(params)``, raising ParameterError) refuses for this experiment,
-    becomes a command-line error that names the field; so does a --json or --plot that cannot be written or
-    that names the --params file (inputs are never overwritten).
+    one that the sensor cannot be read or calibrated with (``sensor.photoreflector.check_params``, unless
+    ``uses_sensor`` is False) or that a callable of ``checks`` (``check(params)``, raising ParameterError)
+    refuses for this experiment, becomes a command-line error that names the field; so does a --json or --plot
+    that cannot be written or that names the --params file (inputs are never overwritten).
     """
+    checks = (*checks, check_sensor_params) if uses_sensor else tuple(checks)
     check_output_paths(parser, args, inputs=(args.params,))
     try:
         params = load_params(args.params)
@@ -56,8 +60,10 @@ def run_errors(parser: argparse.ArgumentParser):
     try:
         yield
     except InfeasibleCalibrationError as exc:
-        parser.error(f"{str(exc).rstrip('.')}. The sensor's parameters (noise, ADC bits, optical response) leave "
-                     f"the QP calibration no solution within the paper's error bound")
+        parser.error(f"{str(exc).rstrip('.')}. The sensor's parameters leave the QP calibration no solution "
+                     f"within the paper's error bound: look at photoreflector.noise_min_v / noise_max_v, "
+                     f"adc_bits, bandwidth_hz (its lag on the loading ramps), the slip fractions (hysteresis) and "
+                     f"the optical curvature fractions")
 
 
 def check_output_paths(parser: argparse.ArgumentParser, args: argparse.Namespace, inputs=()) -> None:

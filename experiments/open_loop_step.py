@@ -119,7 +119,7 @@ def main(argv: list[str] | None = None) -> None:
     add_params_arg(parser)
     add_rerun_args(parser)
     args = parser.parse_args(argv)
-    params = load_params_arg(parser, args)
+    params = load_params_arg(parser, args, uses_sensor=False)
     limit_nm = CurrentToTorqueMap.from_params(params).command_limit_nm
     for step_nm in args.steps:
         if not (math.isfinite(step_nm) and 0.0 < abs(step_nm) <= limit_nm):

@@ -176,7 +176,7 @@ def main(argv: list[str] | None = None) -> None:
     add_rerun_args(parser, "the breakaway ramp (free fixture) and backlash reversal (locked fixture) runs the "
                            "card simulates (kept while measuring, not re-run)")
     args = parser.parse_args(argv)
-    params = load_params_arg(parser, args)
+    params = load_params_arg(parser, args, uses_sensor=False)
     card = run_plant_card(params, keep_logs=rerun_requested(args) or bool(args.plot))
     print(format_card(card))
     write_outputs(args, card.to_dict(), lambda directory: plot_card(card, params, directory))

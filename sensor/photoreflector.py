@@ -153,9 +153,10 @@ def check_params(params: TestbedParams) -> None:
             f"photoreflector.adc_reference_v = {ref:g} V: the channels reach {hi:.3g} V over the calibration "
             f"protocols (±25 N·m on operating points {op_lo:.3g}-{op_hi:.3g} V, noise ±{ADC_NOISE_MARGIN_SIGMA:g}"
             f" std included), and the ADC clips everything above its reference{below_op}. Valid with this "
-            f"sensor: adc_reference_v >= {hi:.3g} V (the paper's ADC: 3.3 V), or "
-            f"photoreflector.operating_point_v lowered by {hi - ref:.3g} V to {pr.operating_point_v - (hi - ref):.3g} V"
-            + ("" if hi - lo <= ref else " together with a larger adc_reference_v (the swing alone exceeds it)"))
+            f"sensor: adc_reference_v >= {hi:.3g} V (the paper's ADC: 3.3 V)"
+            + ("" if hi - lo > ref or pr.operating_point_v - (hi - ref) <= 0.0 else
+               f", or photoreflector.operating_point_v lowered by {hi - ref:.3g} V to "
+               f"{pr.operating_point_v - (hi - ref):.3g} V"))
 
 
 def _protocol_voltage_range(params: TestbedParams) -> tuple[float, float, float, float]:

@@ -241,8 +241,13 @@ class PhotoReflectorParams:
         1622.0, "V/m", "paper Sec. IV-B: 0.04 V/(N·m) (1 V at 25 N·m), converted as above", 0.0, INF,
         low_open=True)
     quadratic_fraction_max: float = quantity(
-        0.04, "1", "assumed: |quadratic term| up to 4 % of the linear one at the 25 N·m calibration span; the "
-        "paper fits x³, x², x per channel (Eq. 10), so the response is visibly nonlinear", 0.0, 0.5)
+        0.04, "1", "assumed: |quadratic term| up to 4 % of the linear one at the 25 N·m calibration span (the "
+        "paper fits x³, x², x per channel, Eq. 10). With the cubic term the response departs from a straight line "
+        "by 0.2-1.3 % of its swing (units 0-2): curved, but not visibly on a plot. A 1/d² gap response at a 3 mm "
+        "gap would give ~0.3 (and cubic ~0.08); measured in session 16 and not adopted: the calibration figures "
+        "stay within 4 %, but the stronger curvature multiplies the calibrated output's temperature sensitivity "
+        "(10 N·m one-hour drift 1.29x / 1.89x, zero drift per °C 0.08x) and moves the sensor-feedback figures "
+        "of Table VII (square peak 6.0x, 10 N·m peak 0.10x); docs/issue3_figures.md", 0.0, 0.5)
     cubic_fraction_max: float = quantity(
         0.01, "1", "assumed: |cubic term| up to 1 % of the linear one at the calibration span", 0.0, 0.5)
     operating_point_v: float = quantity(
@@ -274,9 +279,10 @@ class PhotoReflectorParams:
         "1000-1005, seeds 0-5, default noise spread; docs/issue3_figures.md). Plausible range assumed for "
         "tests: 0.3-0.6 % for slip_fraction_min, 2-4x that for the largest", 0.0, 1.0)
     quartic_fraction_max: float = quantity(
-        0.004, "1", "tuned: |quartic term| of the optical response up to this fraction of the linear one at the "
-        "calibration span: curvature beyond the cubic basis of Eq. 10, which the paper's 0.111 % FS "
-        "nonlinearity after calibration measures", 0.0, 0.5)
+        0.004, "1", "assumed: |quartic term| of the optical response up to this fraction of the linear one at the "
+        "calibration span: curvature beyond the cubic basis of Eq. 10. It was meant to carry the paper's 0.111 % FS "
+        "nonlinearity after calibration, but the eight-channel cubic fit cancels it (0 to 3x this value leaves "
+        "the figure at 0.050 % FS, which the hysteresis sets; docs/issue3_figures.md)", 0.0, 0.5)
     crosstalk_v_per_nm: float = quantity(
         2.4e-3, "V/(N·m)", "paper Sec. IV-B: about 0.06 V per channel at 25 N·m of T_x or T_y", 0.0, 1.0)
     crosstalk_spread: float = quantity(

@@ -175,18 +175,31 @@ def resolution_gain(params: TestbedParams | None = None, seed: int = 0) -> tuple
     sensor.calibration.InfeasibleCalibrationError
         If no calibration meets the paper's error bound on the calibration record.
     """
-    params = params or TestbedParams()
+    run = _recorder(params or TestbedParams(), seed)
+    _, rig = _calibrated(run)
+    v = run("resolution", resolution_schedule).voltages_v
+    return (metrics.resolution_3sigma(rig.ls.predict(v)).std_nm, metrics.resolution_3sigma(rig.qp.predict(v)).std_nm)
+
+
+def _recorder(params: TestbedParams, seed: int):
+    """``run(name, schedule_of) -> RigRecord``: one protocol recorded on the rig, each ``name`` with its own
+    noise stream of ``seed`` (so the records do not depend on the order they are made in)."""
     check_params(params)
     seeds = dict(zip(_STREAMS, np.random.SeedSequence(seed).spawn(len(_STREAMS)), strict=True))
-    runs = {}
-    for name, schedule_of in (("calibration", calibration_schedule), ("resolution", resolution_schedule),
-                              ("calibration_moment_x", lambda dt: crosstalk_schedule(dt, "x")),
-                              ("calibration_moment_y", lambda dt: crosstalk_schedule(dt, "y"))):
-        array = PhotoReflectorArray(params, seed=seeds[name].generate_state(1)[0])
-        runs[name] = record(schedule_of(array.sample_period_s), array, np.random.default_rng(seeds[name]))
-    rig = calibrate(runs["calibration"], [runs["calibration_moment_x"], runs["calibration_moment_y"]])
-    v = runs["resolution"].voltages_v
-    return (metrics.resolution_3sigma(rig.ls.predict(v)).std_nm, metrics.resolution_3sigma(rig.qp.predict(v)).std_nm)
+
+    def run(name: str, schedule_of) -> RigRecord:
+        ss = seeds[name]
+        array = PhotoReflectorArray(params, seed=ss.generate_state(1)[0])
+        return record(schedule_of(array.sample_period_s), array, np.random.default_rng(ss))
+
+    return run
+
+
+def _calibrated(run) -> tuple[RigRecord, RigCalibration]:
+    """The calibration record and both calibrations fitted on it with the moment records."""
+    cal_rec = run("calibration", calibration_schedule)
+    moments = [run(f"calibration_moment_{axis}", lambda dt, a=axis: crosstalk_schedule(dt, a)) for axis in "xy"]
+    return cal_rec, calibrate(cal_rec, moments)
 
 
 def improvement_ratio(ls_std_nm: float, qp_std_nm: float) -> float:
@@ -218,18 +231,8 @@ def evaluate_sensor(params: TestbedParams | None = None, seed: int = 0) -> Senso
     sensor.calibration.InfeasibleCalibrationError
         If no calibration meets the paper's error bound on the calibration record.
     """
-    params = params or TestbedParams()
-    check_params(params)
-    seeds = dict(zip(_STREAMS, np.random.SeedSequence(seed).spawn(len(_STREAMS)), strict=True))
-
-    def run(name: str, schedule_of) -> RigRecord:
-        ss = seeds[name]
-        array = PhotoReflectorArray(params, seed=ss.generate_state(1)[0])
-        return record(schedule_of(array.sample_period_s), array, np.random.default_rng(ss))
-
-    cal_rec = run("calibration", calibration_schedule)
-    moments = [run(f"calibration_moment_{axis}", lambda dt, a=axis: crosstalk_schedule(dt, a)) for axis in "xy"]
-    rig = calibrate(cal_rec, moments)
+    run = _recorder(params or TestbedParams(), seed)
+    cal_rec, rig = _calibrated(run)
     ls, qp, selection = rig.ls, rig.qp, rig.gamma_selection
 
     ev = run("evaluation", calibration_schedule)

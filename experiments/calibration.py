@@ -23,8 +23,7 @@ from experiments.common import (TARGET_RATIO, add_output_args, add_params_arg, a
                                 write_outputs)
 from sensor import metrics
 from sensor.calibration import FS_NM
-from sensor.evaluation import SensorEvaluation, evaluate_sensor
-from sensor.protocol import PRELOAD_LABEL
+from sensor.evaluation import SensorEvaluation, evaluate_sensor, measured_cycles
 from sim.figures import moving_mean, save_figure
 from sim.params import TestbedParams
 
@@ -81,8 +80,9 @@ MAGNIFIED_HALF_WIDTH_NM = 0.3  # [N·m] half width of Fig. 7(b)'s window (the pa
 CROSSTALK_PLOT_MEAN_S = 0.1  # [s] window of the running mean drawn over the raw crosstalk output (display only)
 
 
-def _paper(name: str) -> float:
-    return next(value for key, *_, value in PAPER_FIGURES if key == name)
+def paper_value(name: str, paper=PAPER_FIGURES) -> float:
+    """The paper's value of the figure ``name`` in a table of ``(name, table, quantity, unit, value)`` rows."""
+    return next(value for key, *_, value in paper if key == name)
 
 
 @dataclass(frozen=True, eq=False)
@@ -109,10 +109,8 @@ class BranchFigure:
 def branch_figure(ev: SensorEvaluation) -> BranchFigure:
     """Fig. 7's curves: :func:`sensor.metrics.nonlinearity` and :func:`~sensor.metrics.hysteresis` on the
     evaluation session's measured cycles (as :func:`sensor.evaluation.evaluate_sensor` calls them)."""
-    rec = ev.evaluation_record
-    measured = rec.schedule.cycle != PRELOAD_LABEL
-    direction = metrics.reference_direction(rec.tau_reference_nm)[measured]
-    ref, out = rec.tau_reference_nm[measured], ev.qp.predict(rec.voltages_v)[measured]
+    m = measured_cycles(ev.evaluation_record, ev.qp)
+    ref, out, direction = m.reference_nm, m.output_nm, m.direction
     bc = metrics.branch_curves(ref, out, direction)
     nl = metrics.nonlinearity(ref, out, direction)
     hy = metrics.hysteresis(ref, out, direction)
@@ -167,9 +165,8 @@ def plot_channels(ev: SensorEvaluation, out_dir: Path) -> Path:
         ax[1].plot(rec.tau_reference_nm[::step], rec.voltages_v[::step, k], ".", ms=1, label=f"ch {k + 1}")
     ax[1].set(xlabel="MINI85 torque [N·m]", ylabel="channel voltage [V]", title="(b) the eight channels' responses")
     ax[1].legend(markerscale=8, fontsize=7, ncol=2)
-    evr = ev.evaluation_record
-    measured = evr.schedule.cycle != PRELOAD_LABEL
-    ref, err = evr.tau_reference_nm[measured], (ev.qp.predict(evr.voltages_v) - evr.tau_reference_nm)[measured]
+    m = measured_cycles(ev.evaluation_record, ev.qp)
+    ref, err = m.reference_nm, m.output_nm - m.reference_nm
     k = int(np.argmax(np.abs(err)))
     ax[2].plot(ref[::step], err[::step], ".", ms=1, label=f"1 sample in {step}")
     ax[2].plot(ref[k], err[k], "s", ms=8, mfc="none", color="tab:red", label="largest error")
@@ -178,7 +175,8 @@ def plot_channels(ev: SensorEvaluation, out_dir: Path) -> Path:
     (emax, _), (rms, _) = ev.figures["max_error_pct_fs"], ev.figures["rms_error_nm"]
     ax[2].set(xlabel="MINI85 torque [N·m]", ylabel="QP output - MINI85 [N·m]",
               title=f"(c) QP error, evaluation session (5 cycles each way)\nmax {emax:.3f} % FS (paper "
-                    f"{_paper('max_error_pct_fs'):.3f}), RMS {rms:.4f} N·m (paper {_paper('rms_error_nm'):.4f})")
+                    f"{paper_value('max_error_pct_fs'):.3f}), RMS {rms:.4f} N·m "
+                    f"(paper {paper_value('rms_error_nm'):.4f})")
     fig.suptitle("Calibration experiment (paper Fig. 6; Table III's errors)", fontsize=11)
     return save_figure(fig, out_dir, "calibration_channels.png")
 
@@ -252,8 +250,8 @@ def plot_crosstalk_noise(ev: SensorEvaluation, out_dir: Path) -> Path:
         std, res3 = ev.figures[f"{name}_std_nm"][0], ev.figures[f"{name}_resolution_3sigma_nm"][0]
         a.set(xlabel="time [s]", ylabel="torque, no load [N·m]",
               title=f"({letter}) {name.upper()} calibration: no load, 1 kHz, unfiltered\nσ {std:.4f} N·m (paper "
-                    f"{_paper(f'{name}_std_nm')}),\n3σ {res3:.4f} N·m (paper "
-                    f"{_paper(f'{name}_resolution_3sigma_nm')})")
+                    f"{paper_value(f'{name}_std_nm')}),\n3σ {res3:.4f} N·m (paper "
+                    f"{paper_value(f'{name}_resolution_3sigma_nm')})")
     ax[1, 2].sharey(ax[0, 2])
     fig.suptitle("Crosstalk and resolution (paper Fig. 8(b)-(f), Table IV, Sec. IV-B)", fontsize=11)
     return save_figure(fig, out_dir, "calibration_crosstalk_noise.png")
@@ -281,7 +279,7 @@ def _crosstalk_panel(ax, ev: SensorEvaluation, axis: str) -> None:
             label=f"apparent T_z, {CROSSTALK_PLOT_MEAN_S:g} s mean")
     ax.plot(rec.time_s[xt.at_index], apparent[xt.at_index], "s", ms=8, mfc="none", color="tab:red",
             label="largest |apparent T_z|: the crosstalk")
-    paper = _paper(f"crosstalk_t{axis}_pct_fs")
+    paper = paper_value(f"crosstalk_t{axis}_pct_fs")
     for sign in (1, -1):
         ax.axhline(sign * _nm(paper), color="0.4", ls=":",
                    label=f"paper's crosstalk {paper} % FS" if sign > 0 else None)

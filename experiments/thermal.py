@@ -23,7 +23,7 @@ from typing import Any
 
 import numpy as np
 
-from experiments.calibration import comparison_rows
+from experiments.calibration import comparison_rows, paper_value
 from experiments.common import (TARGET_RATIO, add_output_args, add_params_arg, add_rerun_args, cli_parser, format_rows,
                                 load_params_arg, record_log, record_rerun, run_errors, seed_arg, write_outputs)
 from sensor.calibration import FS_NM
@@ -170,7 +170,7 @@ def _plot_drift_test(ax, temp_ax, result: ThermalExperiment, load: float, refere
     ax.legend(handles=handles, fontsize=8, loc="upper left")
     tag = f"{load:g}nm"
     rms = {k: result.figures_by_name[f"drift_rms_{tag}_{k}"][0] for k in ("uncompensated", "compensated")}
-    paper = {k: next(v for name, *_, v in PAPER_FIGURES if name == f"drift_rms_{tag}_{k}") for k in rms}
+    paper = {k: paper_value(f"drift_rms_{tag}_{k}", PAPER_FIGURES) for k in rms}
     ax.set(ylabel="torque [N·m]",
            title=f"({letter}) one hour at {load:g} N·m; RMS error against the applied torque:\n"
                  f"uncompensated {rms['uncompensated']:.4f} N·m (paper {paper['uncompensated']}),\n"
@@ -197,11 +197,13 @@ def main(argv: list[str] | None = None) -> int:
     print("\nzero-drift models fitted on the chamber record (paper: the rational function fits best):")
     for name, reason in result.models.failures.items():
         print(f"  {name:<9} failed: {reason}")
-    agrees = "as in the paper" if result.models.best == "rational" else (
-        "unlike the paper; the compensation uses the rational function, the paper's choice")
     if result.compensation_model != "rational":
         agrees = (f"the rational function (Eq. 20) was rejected for this unit, so the compensation uses "
                   f"{result.compensation_model}, the best of the others")
+    elif result.models.best == "rational":
+        agrees = "as in the paper"
+    else:
+        agrees = "unlike the paper; the compensation uses the rational function, the paper's choice"
     print(f"  lowest RMS here: {result.models.best} ({agrees})")
     for name, fit in result.models.fits.items():
         print(f"  {name:<9} RMS {fit.rmse_nm:.5f} N·m, max {fit.max_abs_error_nm:.5f} N·m, "

@@ -59,6 +59,26 @@ class SensorEvaluation:
                                     "gamma": self.gamma_selection.gamma}}
 
 
+@dataclass(frozen=True, eq=False)
+class MeasuredCycles:
+    """The evaluation session's samples that Table III's figures use: the five cycles each way (the preload
+    cycles only set the slip state). ``reference_nm`` (MINI85) and ``output_nm`` (the calibration) [N·m],
+    ``direction`` (+1 loading, -1 unloading, :func:`sensor.metrics.reference_direction`), ``cycle`` labels."""
+
+    reference_nm: np.ndarray
+    output_nm: np.ndarray
+    direction: np.ndarray
+    cycle: np.ndarray
+
+
+def measured_cycles(evaluation_record: RigRecord, calibration: Calibration) -> MeasuredCycles:
+    """The samples of ``evaluation_record`` outside the preload cycles, with ``calibration``'s output there."""
+    rec = evaluation_record
+    measured = rec.schedule.cycle != PRELOAD_LABEL
+    return MeasuredCycles(rec.tau_reference_nm[measured], calibration.predict(rec.voltages_v)[measured],
+                          metrics.reference_direction(rec.tau_reference_nm)[measured], rec.schedule.cycle[measured])
+
+
 # The paper's gamma criterion is RMSE^2 + lambda Var(tau_hat on I_0) with lambda left open ("e.g.").
 # lambda = 9 weighs the squared 3-sigma resolution, (3 sigma)^2 = 9 Var, equally with the squared RMS error:
 # both terms are then the squares of the two figures the paper reports, in N·m.
@@ -236,9 +256,8 @@ def evaluate_sensor(params: TestbedParams | None = None, seed: int = 0) -> Senso
     ls, qp, selection = rig.ls, rig.qp, rig.gamma_selection
 
     ev = run("evaluation", calibration_schedule)
-    measured = ev.schedule.cycle != PRELOAD_LABEL  # the five cycles each way; preloads only set the slip state
-    direction = metrics.reference_direction(ev.tau_reference_nm)[measured]
-    ref, out = ev.tau_reference_nm[measured], qp.predict(ev.voltages_v)[measured]
+    m = measured_cycles(ev, qp)
+    ref, out, direction = m.reference_nm, m.output_nm, m.direction
     err = metrics.error_metrics(out, ref)
     xt = {axis: run(f"crosstalk_{axis}", lambda dt, a=axis: crosstalk_schedule(dt, a)) for axis in ("x", "y")}
     cross = {axis: metrics.crosstalk(qp.predict(r.voltages_v), tare_mask=r.schedule.branch == 0)
@@ -251,7 +270,7 @@ def evaluate_sensor(params: TestbedParams | None = None, seed: int = 0) -> Senso
         "rms_error_nm": (err.rms_error_nm, "N·m"),
         "nonlinearity_pct_fs": (metrics.nonlinearity(ref, out, direction).nonlinearity_pct_fs, "% FS"),
         "hysteresis_pct_fs": (metrics.hysteresis(ref, out, direction).hysteresis_pct_fs, "% FS"),
-        "repeatability_pct_fs": (_repeatability_per_series(ref, out, ev.schedule.cycle[measured], direction),
+        "repeatability_pct_fs": (_repeatability_per_series(ref, out, m.cycle, direction),
                                  "% FS"),
         "crosstalk_tx_pct_fs": (cross["x"].crosstalk_pct_fs, "% FS"),
         "crosstalk_ty_pct_fs": (cross["y"].crosstalk_pct_fs, "% FS"),

@@ -180,6 +180,7 @@ def _protocol_voltage_range(params: TestbedParams) -> tuple[float, float, float,
     op = array.unit.operating_point_v
     return float(np.min(v - margin)), float(np.max(v + margin)), float(op.min()), float(op.max())
 
+
 def play_operator(x: np.ndarray, half_width: float, initial: float = 0.0) -> np.ndarray:
     """Backlash (play) hysteresis: y follows x but only once x has moved half_width past it."""
     y, _ = maxwell_slip(x, np.array([half_width]), np.array([initial]))

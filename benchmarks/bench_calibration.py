@@ -211,7 +211,7 @@ def main(argv=None) -> None:
             fits[(gamma, e_max)] = fit
             star = "*" if (gamma, e_max, e_label) in full_settings else " "
             rows.append((f"QP ours gamma={gamma:g}, e_max={e_label} {star}", t_qp, m_qp,
-                         f"it {d.iterations}, working {d.n_working_constraints}, active "
+                         f"it {d.iterations}, passes {d.full_passes}, working {d.n_working_constraints}, active "
                          f"{d.n_active_constraints}, max|r| {d.residual_max_nm:.4f} N m"))
         for gamma, e_max, e_label in full_settings:
             label = f"full QP proxqp 2N rows, gamma={gamma:g}, {e_label}"

@@ -43,7 +43,10 @@ Euclidean projection ``minimize ||w - d||^2 s.t. G_w w <= h``, well conditioned 
 The 2N inequality constraints are handled by an exact cutting-plane (working-set) scheme: solve with
 the current working set, evaluate ``A theta - y`` on all rows (one O(N 25) pass), add the most violated
 rows (the worst of each run of neighbouring violations first), repeat until no row exceeds ``e_max``
-by more than ``feasibility_tol_nm = 1e-9 FS``. The small QPs go to ProxQP through qpsolvers (solver
+by more than ``feasibility_tol_nm = 1e-9 FS``. Between passes over all rows only a candidate subset is
+checked (the rows whose residual was above half the bound, at most 65 536): when the candidates meet
+the bound, a pass over all rows confirms it or starts a new candidate set, so the stopping test is
+always on all rows. All BLAS calls are small (25 columns) and run single-threaded. The small QPs go to ProxQP through qpsolvers (solver
 name ``"proxqp"``, the ProxSuite solver) and are polished to the exact KKT point of their active set;
 if ProxQP reports failure on a working set that an LP shows to be feasible (its infeasibility test is
 loose for thin feasible sets), the projection is solved exactly by Lawson-Hanson least-distance
@@ -54,6 +57,7 @@ the smallest feasible bound is found by a minimax LP (HiGHS), also by a cutting 
 
 from __future__ import annotations
 
+import functools
 import math
 import time
 from dataclasses import asdict, dataclass, field
@@ -63,6 +67,7 @@ import numpy as np
 import qpsolvers
 import scipy.linalg
 import scipy.optimize
+import threadpoolctl
 
 __all__ = [
     "N_CHANNELS",
@@ -130,6 +135,16 @@ PREDICT_CHUNK_ROWS = 8_192
 
 MAX_ROWS_ADDED_PER_ITERATION = 128
 """Cutting-plane: at most this many violated rows enter the working set per iteration."""
+
+CANDIDATE_MARGIN_FRACTION = 0.5
+"""Cutting-plane: after a pass over all rows, the rows with ``|a_k theta - y_k|`` above this
+fraction of ``e_max`` become the candidate set that the next iterations check (the others would need
+the solution to move their prediction by at least half the bound); a pass over all rows confirms
+the result (see :meth:`_QPSolver.solve`)."""
+
+MAX_CANDIDATE_ROWS = 65_536
+"""Cutting-plane: the candidate set keeps at most this many rows (the largest residuals); above
+half of N the candidate set is all rows."""
 
 MAX_CUTTING_PLANE_ITERATIONS = 200
 """Cutting-plane: iteration cap; reaching it raises instead of returning an unproven point."""
@@ -238,6 +253,8 @@ class SolveDiagnostics:
         ``||A theta - y||^2 + gamma ||A_0c theta||^2`` [N^2 m^2] (gamma = 0 for least squares).
     feasibility_tol_nm : float
         Tolerance of the bound check [N m].
+    full_passes : int
+        Evaluations of ``A theta - y`` on all N rows (the QP checks a candidate subset in between).
     solve_time_s : float
         Wall time of the fit [s]. Kept for benchmarks and printing only: it differs from run to run, so it
         is left out of comparisons (``==``) and of :meth:`to_dict` (the same seed gives the same JSON).
@@ -252,6 +269,7 @@ class SolveDiagnostics:
     quiet_std_nm: float | None
     objective_nm2: float
     feasibility_tol_nm: float
+    full_passes: int = 1
     solve_time_s: float = field(default=math.nan, compare=False)
 
     def to_dict(self) -> dict[str, Any]:
@@ -486,6 +504,26 @@ def quiet_segment_mask(tau_ref: np.ndarray,
 
 
 # --- Streaming numerics -------------------------------------------------------------------------------
+@functools.cache
+def _blas_controller() -> threadpoolctl.ThreadpoolController:
+    return threadpoolctl.ThreadpoolController()
+
+
+def _single_threaded_blas(fit):
+    """Run ``fit`` with one BLAS thread.
+
+    Every BLAS call here is small (25 columns): with OpenBLAS's worker threads each call paid about a
+    millisecond of thread wake-up on the 2-core development machine, so the QP at N = 1e6 took
+    1.3-1.8x longer with two threads than with one (``benchmarks/README.md``). The limit is
+    process-wide while ``fit`` runs and is restored afterwards.
+    """
+    @functools.wraps(fit)
+    def wrapper(*args, **kwargs):
+        with _blas_controller().limit(limits=1, user_api="blas"):
+            return fit(*args, **kwargs)
+    return wrapper
+
+
 def _predict(v: np.ndarray, theta: np.ndarray, out: np.ndarray | None = None) -> np.ndarray:
     """``A(v) @ theta`` by per-channel Horner, in chunks (no N x 25 temporary).
 
@@ -744,18 +782,32 @@ def _fit_stats(r: np.ndarray, y: np.ndarray, quiet_mask: np.ndarray | None) -> _
                      quiet_sum_sq_nm2=qss, quiet_std_nm=qstd)
 
 
-def _select_violated(excess: np.ndarray, k_max: int) -> np.ndarray:
-    """Up to ``k_max`` row indices with ``excess > 0``.
+def _candidate_rows(abs_r: np.ndarray, e_max_nm: float) -> np.ndarray | None:
+    """Rows the cutting plane re-checks between passes over all rows (sorted indices): those with
+    ``|r| > CANDIDATE_MARGIN_FRACTION * e_max``, at most :data:`MAX_CANDIDATE_ROWS` of the largest;
+    None (check every row) if that would be more than half of them."""
+    idx = np.flatnonzero(abs_r > CANDIDATE_MARGIN_FRACTION * e_max_nm)
+    if idx.size > MAX_CANDIDATE_ROWS:
+        top = np.argpartition(-abs_r[idx], MAX_CANDIDATE_ROWS - 1)[:MAX_CANDIDATE_ROWS]
+        idx = np.sort(idx[top])
+    return None if idx.size > abs_r.size // 2 else idx
+
+
+def _select_violated(excess: np.ndarray, k_max: int,
+                     sample_index: np.ndarray | None = None) -> np.ndarray:
+    """Up to ``k_max`` positions in ``excess`` with ``excess > 0``.
 
     Violations come in runs of neighbouring samples that carry nearly the same constraint, so the
     worst row of each run is taken first (runs ranked by their worst excess), then, if room is left,
-    the next worst rows overall.
+    the next worst rows overall. ``sample_index`` (sorted) gives each position's sample number when
+    ``excess`` covers a subset of the rows (default: position = sample).
     """
     idx = np.flatnonzero(excess > 0)
     if idx.size <= k_max:
         return idx
     ex = excess[idx]
-    starts = np.flatnonzero(np.concatenate([[True], np.diff(idx) > 1]))
+    samples = idx if sample_index is None else sample_index[idx]
+    starts = np.flatnonzero(np.concatenate([[True], np.diff(samples) > 1]))
     run_max = np.maximum.reduceat(ex, starts)
     ends = np.append(starts[1:], idx.size)
     if starts.size > k_max:
@@ -772,6 +824,7 @@ def _select_violated(excess: np.ndarray, k_max: int) -> np.ndarray:
 
 
 # --- Least squares -----------------------------------------------------------------------------------
+@_single_threaded_blas
 def fit_least_squares(v: np.ndarray, tau_ref: np.ndarray, *, fs_nm: float = FS_NM,
                       quiet_mask: np.ndarray | None = None) -> Calibration:
     """Conventional least-squares calibration (Eq. 11).
@@ -876,6 +929,7 @@ def _minimax(v, y, fac: _Factor, seed_rows: np.ndarray, tol_nm: float,
                        f"iterations")
 
 
+@_single_threaded_blas
 def smallest_feasible_e_max(v: np.ndarray, tau_ref: np.ndarray, *,
                             fs_nm: float = FS_NM) -> float:
     """Smallest ``e_max`` [N m] for which Eq. 15 is feasible.
@@ -1003,37 +1057,38 @@ class _QPSolver:
         q_u, u = np.linalg.qr(np.vstack([np.eye(n), math.sqrt(gamma) * self.p0]))
         d = q_u[:n].T @ fac.c
         w = d.copy()                                    # unconstrained optimum
-        iterations = 0
+        bound = e_max_nm + self.tol_nm
+        iterations, full_passes = 1, 0
+        cand = None       # the rows the next check covers (sorted indices); None: every row
         if self.rows.size:  # warm start from a previous gamma: those rows are true constraints
             w = self._solve_working_set(u, d, w, e_max_nm)
         while True:
-            iterations += 1
             theta = _theta_from_z(scipy.linalg.solve_triangular(u, w), fac)
-            r = _residual(v, y, theta, out=self.r_buf)
-            excess = np.abs(r, out=self.abs_buf)
-            r_max = float(np.max(excess))
-            if r_max <= e_max_nm + self.tol_nm:
-                break
+            if cand is not None:
+                r = _residual(v_cand, y_cand, theta)
+                if float(np.max(np.abs(r))) <= bound:
+                    cand = None                         # the candidates hold: check every row
+            if cand is None:
+                r = _residual(v, y, theta, out=self.r_buf)
+                full_passes += 1
+                if float(np.max(np.abs(r, out=self.abs_buf))) <= bound:
+                    break
+                cand = _candidate_rows(self.abs_buf, e_max_nm)
+                if cand is not None:
+                    v_cand, y_cand, r = v[cand], y[cand], r[cand]
             if iterations >= MAX_CUTTING_PLANE_ITERATIONS:
                 raise RuntimeError(f"QP cutting plane did not converge in "
                                    f"{MAX_CUTTING_PLANE_ITERATIONS} iterations (max residual "
-                                   f"{r_max:.6g} N m > e_max {e_max_nm:.6g} N m)")
-            excess -= e_max_nm + self.tol_nm
-            same = self.signs == np.where(r[self.rows] >= 0, 1, -1)
-            excess[self.rows[same]] = -np.inf           # already constrained with this sign
-            new = _select_violated(excess, MAX_ROWS_ADDED_PER_ITERATION)
-            if new.size == 0:
-                raise RuntimeError("QP cutting plane stalled: the only violated rows are already in "
-                                   "the working set (small-QP accuracy below the feasibility "
-                                   f"tolerance {self.tol_nm:.3g} N m)")
-            self._add(new, np.where(r[new] >= 0, 1, -1))
+                                   f"{float(np.max(np.abs(r))):.6g} N m > e_max {e_max_nm:.6g} N m)")
+            self._add(*self._most_violated(r, cand, bound))
             w = self._solve_working_set(u, d, w, e_max_nm)
+            iterations += 1
         ps = _fit_stats(r, y, self.quiet_mask)
         n_active = int(np.count_nonzero(np.abs(r) >= e_max_nm - self.tol_nm))
         diag = SolveDiagnostics(
             solver=f"cutting-plane+proxqp on {fac.method}" + (
                 f" ({self.n_fallback_solves} LDP fallback solves)" if self.n_fallback_solves else ""),
-            iterations=iterations,
+            iterations=iterations, full_passes=full_passes,
             n_working_constraints=int(self.rows.size), n_active_constraints=n_active,
             residual_max_nm=ps.residual_max_nm, rms_error_nm=ps.rms_error_nm,
             quiet_std_nm=ps.quiet_std_nm,
@@ -1042,6 +1097,26 @@ class _QPSolver:
         return Calibration(theta=theta, method="qp", gamma=gamma, e_max_nm=e_max_nm,
                            fs_nm=self.fs_nm, n_samples=fac.n, n_quiet=fac.n_quiet,
                            diagnostics=diag)
+
+    def _most_violated(self, r: np.ndarray, cand: np.ndarray | None,
+                       bound: float) -> tuple[np.ndarray, np.ndarray]:
+        """Rows (indices into all rows) and signs to add: the most violated of the residuals ``r``
+        on ``cand`` (None: all rows), leaving out rows already constrained with the same sign."""
+        excess = np.abs(r)
+        excess -= bound
+        rows, signs = self.rows, self.signs
+        if cand is not None:                            # working-set rows among the candidates
+            pos = np.minimum(np.searchsorted(cand, rows), cand.size - 1)
+            inside = cand[pos] == rows
+            rows, signs = pos[inside], signs[inside]
+        excess[rows[signs == np.where(r[rows] >= 0, 1, -1)]] = -np.inf
+        new = _select_violated(excess, MAX_ROWS_ADDED_PER_ITERATION, cand)
+        if new.size == 0:
+            raise RuntimeError("QP cutting plane stalled: the only violated rows are already in "
+                               "the working set (small-QP accuracy below the feasibility "
+                               f"tolerance {self.tol_nm:.3g} N m)")
+        new_signs = np.where(r[new] >= 0, 1, -1)
+        return (new if cand is None else cand[new]), new_signs
 
     def _solve_working_set(self, u, d, w0, e_max_nm) -> np.ndarray:
         """``minimize ||w - d||^2 s.t. G_w w <= h`` on the working set (ProxQP, then polish)."""
@@ -1075,6 +1150,7 @@ def _prepare_qp(v, tau_ref, quiet_mask, fs_nm) -> _QPSolver:
     return _QPSolver(v, y, quiet_mask, _factor(v, y, quiet_mask), fs_nm)
 
 
+@_single_threaded_blas
 def fit_qp(v: np.ndarray, tau_ref: np.ndarray, *, gamma: float, quiet_mask: np.ndarray,
            e_max_nm: float = E_MAX_NM, fs_nm: float = FS_NM) -> Calibration:
     """Quiet-segment-penalised, error-bounded calibration (the paper's QP, Eq. 17).
@@ -1132,6 +1208,7 @@ def fit_qp(v: np.ndarray, tau_ref: np.ndarray, *, gamma: float, quiet_mask: np.n
                                                        "solve_time_s": time.perf_counter() - t0}))
 
 
+@_single_threaded_blas
 def select_gamma(v: np.ndarray, tau_ref: np.ndarray, *, quiet_mask: np.ndarray,
                  e_max_nm: float = E_MAX_NM, gammas: np.ndarray = DEFAULT_GAMMA_GRID,
                  lambda_weight: float = DEFAULT_LAMBDA_WEIGHT,

@@ -127,6 +127,18 @@ def factorization(request, monkeypatch):
     return request.param
 
 
+@pytest.fixture(params=["every-row", "candidate-rows"])
+def row_checks(request, monkeypatch):
+    """Run a QP test once per way the cutting plane checks the bound: every row after each solve,
+    and a candidate subset between passes over every row, forced to at most 16 rows so that the
+    passes over every row must find what the candidates missed."""
+    if request.param == "every-row":
+        monkeypatch.setattr(cal, "_candidate_rows", lambda abs_r, e_max_nm: None)
+    else:
+        monkeypatch.setattr(cal, "MAX_CANDIDATE_ROWS", 16)
+    return request.param
+
+
 # --- Design matrix and masks ---------------------------------------------------------------------------
 def test_design_matrix_columns_are_cubes_squares_linear_then_constant():
     """A = [x^3 x^2 x 1] has 25 columns in the paper's order (Eq. 10)."""
@@ -215,7 +227,7 @@ def test_predict_equals_design_matrix_times_theta():
 # --- QP: exactness against the full-constraint solve ------------------------------------------------
 @pytest.mark.parametrize("seed", [0, 1, 2])
 @pytest.mark.parametrize("gamma", [0.1, 10.0, 1000.0])
-def test_cutting_plane_qp_equals_full_constraint_proxqp(seed, gamma, factorization):
+def test_cutting_plane_qp_equals_full_constraint_proxqp(seed, gamma, factorization, row_checks):
     """At N = 300 with active bounds, the cutting-plane result equals ProxQP on all 2N rows."""
     v, tau, mask = _realistic(300, seed)
     e_min = _linprog_min_e_max(v, tau)
@@ -233,6 +245,19 @@ def test_cutting_plane_qp_equals_full_constraint_proxqp(seed, gamma, factorizati
     assert j_cp == pytest.approx(j_full, rel=FULL_QP_OBJ_RTOL)
     assert np.max(np.abs(a @ fit.theta - tau)) <= e_max + fit.diagnostics.feasibility_tol_nm
     assert fit.diagnostics.objective_nm2 == pytest.approx(j_cp, rel=1e-9)
+
+
+def test_candidate_rows_save_passes_over_all_rows_and_give_the_same_solution(monkeypatch):
+    """At N = 20 000 with a tight bound and gamma = 1e3, checking a candidate subset between passes
+    gives the solution of checking every row after each solve, with fewer passes over all rows."""
+    v, tau, mask = _realistic(20_000, 3)
+    e_max = 1.05 * cal.smallest_feasible_e_max(v, tau)
+    fit = cal.fit_qp(v, tau, gamma=1e3, quiet_mask=mask, e_max_nm=e_max)
+    monkeypatch.setattr(cal, "_candidate_rows", lambda abs_r, e_max_nm: None)
+    every = cal.fit_qp(v, tau, gamma=1e3, quiet_mask=mask, e_max_nm=e_max)
+    assert every.diagnostics.full_passes == every.diagnostics.iterations >= 3
+    assert fit.diagnostics.full_passes < every.diagnostics.full_passes
+    np.testing.assert_allclose(fit.predict(v), every.predict(v), rtol=0, atol=FULL_QP_PRED_ATOL_NM)
 
 
 @pytest.mark.parametrize("e_max_nm", [math.inf, 1e6])

@@ -113,10 +113,10 @@ class AdmittanceController:
                              f"[0, {2.0 * self.desired_inertia_kgm2 / self.period_s:g}) N·m·s/rad)")
         stiffness_limit = self.desired_damping_nms_per_rad / self.period_s
         if self.desired_stiffness_nm_per_rad > 0.0 and self.desired_stiffness_nm_per_rad >= stiffness_limit:
+            valid = (f"valid range [0, {stiffness_limit:g}) N·m/rad at B_d = {self.desired_damping_nms_per_rad:g} "
+                     f"N·m·s/rad" if stiffness_limit > 0.0 else "it must be 0 when desired_damping_nms_per_rad = 0")
             raise ValueError(f"desired_stiffness_nm_per_rad = {self.desired_stiffness_nm_per_rad}: T_s·K_d must be "
-                             f"< B_d for the discrete virtual dynamics to be stable (valid range [0, "
-                             f"{stiffness_limit:g}) N·m/rad at B_d = {self.desired_damping_nms_per_rad:g} "
-                             f"N·m·s/rad; 0 when B_d = 0)")
+                             f"< B_d for the discrete virtual dynamics to be stable ({valid})")
         self.reset()
 
     def reset(self, angle_rad: float | None = None) -> None:

@@ -100,6 +100,7 @@ def run_torque_loop(plant: Plant, controller: PITorqueController, feedback: Torq
     return RunLog(signal_columns(out, times, extra), units,
                   {"fixture": plant.fixture, "feedback": feedback.kind, "physics_timestep_s": plant.timestep_s,
                    "lever_length_m": plant.params.lever.length_m,
+                   "loadcell_reading_noise_n": plant.params.loadcell.reading_noise_n,
                    "torque_saturation_per_nm": plant.params.motor.torque_saturation_per_nm, **(meta or {})})
 
 
@@ -150,4 +151,5 @@ def run_admittance_loop(plant: Plant, controller: AdmittanceController, feedback
         add_voltage_columns(extra, units, volts)
     return RunLog(signal_columns(out, times, extra), units,
                   {"fixture": plant.fixture, "feedback": feedback.kind, "physics_timestep_s": plant.timestep_s,
-                   "lever_length_m": plant.params.lever.length_m, **(meta or {})})
+                   "lever_length_m": plant.params.lever.length_m,
+                   "loadcell_reading_noise_n": plant.params.loadcell.reading_noise_n, **(meta or {})})

@@ -36,7 +36,10 @@ transient would not be. Set ``feedforward_gain=0`` for the pure PI.
 from __future__ import annotations
 
 import math
+import numbers
 from dataclasses import dataclass
+
+from sim.params import range_text
 
 # Paper Sec. V: PI gains and back-calculation gain of the torque loop, 1 kHz control cycle.
 PAPER_KP = 0.12  # [-] N·m command per N·m error
@@ -47,12 +50,13 @@ REFERENCE_FEEDFORWARD = 1.0  # [-] the reference is the driver's torque command 
 
 
 def check_range(name: str, value: float, low: float, high: float = math.inf, *, low_open: bool = False) -> float:
-    """``value`` as a float if finite and in ``[low, high]`` (``(low, high]`` if low_open), else ValueError
-    naming the field and its valid range."""
+    """``value`` as a float if it is a finite real number in ``[low, high]`` (``(low, high]`` if low_open),
+    else ValueError naming the field and its valid range."""
+    if isinstance(value, bool) or not isinstance(value, numbers.Real):
+        raise ValueError(f"{name} = {value!r}: expected a number in {range_text(low, high, low_open=low_open)}")
     value = float(value)
     if not math.isfinite(value) or value < low or (low_open and value == low) or value > high:
-        bracket = "(" if low_open else "["
-        raise ValueError(f"{name} = {value!r}: valid range {bracket}{low:g}, {high:g}]")
+        raise ValueError(f"{name} = {value!r}: valid range {range_text(low, high, low_open=low_open)}")
     return value
 
 
@@ -95,7 +99,7 @@ class PITorqueController:
         self.ki_per_s = check_range("ki_per_s", self.ki_per_s, 0.0)
         self.antiwindup_per_s = check_range("antiwindup_per_s", self.antiwindup_per_s, 0.0)
         self.period_s = check_range("period_s", self.period_s, 0.0, low_open=True)
-        self.feedforward_gain = check_range("feedforward_gain", self.feedforward_gain, 0.0, 1.0)
+        self.feedforward_gain = check_range("feedforward_gain", self.feedforward_gain, 0.0)
         self.reset()
 
     def reset(self, integrator_nm: float = 0.0) -> None:
@@ -103,7 +107,14 @@ class PITorqueController:
         self.integrator_nm = float(integrator_nm)
 
     def step(self, tau_ref_nm: float, tau_measured_nm: float) -> float:
-        """One tick: the torque command u_k [N·m] for reference and measured torque [N·m]."""
+        """One tick: the torque command u_k [N·m] for reference and measured torque [N·m].
+
+        Raises ValueError on a non-finite input (a NaN would stay in the integrator for good).
+        """
+        if not (math.isfinite(tau_ref_nm) and math.isfinite(tau_measured_nm)):
+            raise ValueError(f"PITorqueController.step: tau_ref_nm = {tau_ref_nm!r}, tau_measured_nm = "
+                             f"{tau_measured_nm!r}: both must be finite (a NaN or inf reading, e.g. from a "
+                             f"disconnected sensor, would stay in the integrator)")
         error = tau_ref_nm - tau_measured_nm
         unsaturated = self.feedforward_gain * tau_ref_nm + self.kp * error + self.integrator_nm
         command = min(max(unsaturated, -self.output_limit_nm), self.output_limit_nm)

@@ -12,7 +12,6 @@ from gymnasium import spaces
 from controllers.feedback import make_feedback
 from envs.randomization import check_scale, randomize_params
 from envs.references import TASK_CHOICES, TASKS, Reference, make_reference
-from experiments.common import LOADCELL_READING_NOISE_N
 from sensor.readout import factory_calibration
 from sim.motor_torque import CurrentToTorqueMap
 from sim.params import TestbedParams
@@ -67,7 +66,7 @@ class TorqueTrackingEnv(gym.Env):
 
     ## Rewards
     Per step k, with y_k the load-cell torque at the end of the tick (force x lever length, with the load
-    cell's reading noise ``LOADCELL_READING_NOISE_N`` unless ``feedback_noise=False``; in the 'free' fixture,
+    cell's reading noise ``loadcell.reading_noise_n`` unless ``feedback_noise=False``; in the 'free' fixture,
     which has no load cell, the true flexure torque), r_k the reference of the tick, u_k the clipped command,
     s the episode's reward scale (largest |reference|, at least 0.01 N·m) and u_max the driver's command
     limit (the action box)::
@@ -217,7 +216,7 @@ class TorqueTrackingEnv(gym.Env):
         Drawn at reset in one call (``Generator.normal`` with a size draws the values the per-step calls would,
         in the same order; a step cannot be taken past the episode's end) instead of one call per step.
         """
-        sigma_nm = LOADCELL_READING_NOISE_N * self.params.lever.length_m if self.feedback_noise else 0.0
+        sigma_nm = self.params.loadcell.reading_noise_n * self.params.lever.length_m if self.feedback_noise else 0.0
         if self.fixture != "locked" or not sigma_nm:
             return None
         return rng.normal(0.0, sigma_nm, self.n_steps).tolist()

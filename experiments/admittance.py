@@ -142,7 +142,8 @@ class AdmittanceResult:
         return fast.peak_hand_torque_nm > 3 * slow.peak_hand_torque_nm and fast.max_lag_rad > 3 * slow.max_lag_rad
 
     def to_dict(self) -> dict:
-        return {"seed": self.seed, "pushes": [p.to_dict() for p in self.pushes],
+        # "rows": the paper gives no admittance figures (Fig. 13 is qualitative); kept for the common JSON shape
+        return {"rows": [], "seed": self.seed, "pushes": [p.to_dict() for p in self.pushes],
                 "follows_slow": self.follows_slow, "resists_fast": self.resists_fast}
 
 

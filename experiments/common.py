@@ -127,6 +127,8 @@ def write_outputs(args: argparse.Namespace, data: dict[str, Any], plot=None) -> 
         write_json(args.json, {**data, "run": run_settings(args)})
         print(f"wrote {args.json}")
     if plot is not None and getattr(args, "plot", None):
+        if not args.plot.exists():
+            print(f"creating the --plot directory {args.plot}")
         paths = plot(args.plot)
         for path in paths if isinstance(paths, (list, tuple)) else [paths]:
             print(f"figure: {path}")
@@ -144,8 +146,9 @@ def add_experiment_args(parser: argparse.ArgumentParser, *, feedback: bool = Tru
                             help="torque measurement the PI closes on (default both)")
     parser.add_argument("--seed", type=seed_arg, default=0, help="seed of the sensor noise (default 0)")
     parser.add_argument("--duration", type=run_seconds, metavar="S",
-                        help=f"shorten every test to about S seconds, {MIN_DURATION_S:g}-{MAX_DURATION_S:g} "
-                             f"(a quick check: the figures are then not comparable with the paper's)")
+                        help=f"run every test for about S seconds instead of its full length, "
+                             f"{MIN_DURATION_S:g}-{MAX_DURATION_S:g} (a quick check: the figures are then not "
+                             f"comparable with the paper's)")
     add_output_args(parser)
     add_params_arg(parser)
     add_rerun_args(parser)
@@ -156,6 +159,8 @@ def add_output_args(parser: argparse.ArgumentParser, json_help: str = "write the
     parser.add_argument("--json", type=Path, metavar="PATH", help=json_help)
     parser.add_argument("--plot", type=Path, metavar="DIR", default=Path("out"),
                         help="save PNG figures in DIR (default out/)")
+    parser.add_argument("--no-plot", dest="plot", action="store_const", const=None,
+                        help="save no figures")
 
 
 # ---------------------------------------------------------------- rerun recordings (issue 5)
@@ -205,7 +210,10 @@ def record_log(time_s, voltages_v, *, tau_sensor_nm=None, tau_mini85_nm=None, ta
 
 
 MIN_DURATION_S = 0.01  # [s] ten 1 kHz control ticks: the shortest run whose errors are defined
-MAX_DURATION_S = 3600.0  # [s] an hour of 1 kHz logs per test (tens of MB); the paper's tests last seconds
+SHORTEST_FULL_TEST_S = 0.4  # [s] the fast push of experiments.admittance: below it every test is cut short
+# [s] the full tests last 4.4-38 s (the disturbance ramp is the longest); a log keeps ~25 columns of float64 per
+# 1 kHz tick, ~200 B/tick, so 120 s is ~24 MB per test and ~340 MB for experiments.paper's 14 closed-loop runs
+MAX_DURATION_S = 120.0
 
 
 def run_seconds(text: str) -> float:
@@ -252,8 +260,9 @@ def run_settings(args: argparse.Namespace) -> dict[str, Any]:
 def short_run_banner(args: argparse.Namespace) -> None:
     """With --duration, say before the tables that their figures are not comparable with the paper's."""
     if getattr(args, "duration", None) is not None:
-        print(f"SHORT RUN (--duration {args.duration:g} s): a check of the command line; the figures below are "
-              f"not comparable with the paper's, which need the full length")
+        kind = "SHORT RUN" if args.duration < SHORTEST_FULL_TEST_S else "RUN AT A SET LENGTH"
+        print(f"{kind} (--duration {args.duration:g} s): the tests ran with this length instead of their full "
+              f"ones; the figures below are not comparable with the paper's")
 
 
 def feedback_kinds(choice: str) -> tuple[str, ...]:
@@ -261,24 +270,19 @@ def feedback_kinds(choice: str) -> tuple[str, ...]:
     return ("current", "sensor") if choice == "both" else (choice,)
 
 
-# The load cell's reading noise (amplifier and ADC), white at the 1 kHz sampling rate [N]. Identified from the
-# paper's Table VI: the sensor-feedback step errors are flat (0.0026, 0.0026, 0.0025 N·m) across step sizes, a
-# measurement floor; the simulated loop alone leaves ~0.0005 N·m, so sqrt(0.0026² - 0.0005²) / 0.1 m ≈ 0.025 N
-# (experiments/identify_defaults.py). That is 0.005 % of the SBA-50L's 500 N capacity, what a 24-bit
-# strain-gauge amplifier gives. Defined here, not in sim.params: it is added to the logged force after a run (the
-# plant's loop never sees it), and by the one function below.
-LOADCELL_READING_NOISE_N = 0.025
 LOADCELL_NOISE_STREAM = 0x10AD  # spawn key separating the load cell's noise from the sensor's for one seed
 
 
-def loadcell_torque_nm(log, seed: int | None = None, noise_n: float = LOADCELL_READING_NOISE_N) -> np.ndarray:
+def loadcell_torque_nm(log, seed: int | None = None) -> np.ndarray:
     """The torque the load cell reports, force x lever length [N·m], from a run log.
 
-    With ``seed`` the reading carries the load cell's white noise (``noise_n`` [N] standard deviation, drawn
-    from its own stream of ``seed``); without it, the true force.
+    With ``seed`` the reading carries the load cell's white noise (standard deviation
+    ``loadcell.reading_noise_n`` [N] of the run's parameters, from the log's metadata, drawn from its own
+    stream of ``seed``); without it, the true force.
     """
     torque = log["force_loadcell"] * log.meta["lever_length_m"]
-    if seed is None or noise_n == 0.0:
+    noise_n = log.meta["loadcell_reading_noise_n"] if seed is not None else 0.0
+    if noise_n == 0.0:
         return torque
     rng = np.random.default_rng([seed, LOADCELL_NOISE_STREAM])
     return torque + rng.normal(0.0, noise_n * log.meta["lever_length_m"], len(torque))
@@ -298,9 +302,9 @@ def paper_row(table: str, quantity: str, unit: str, paper: float | None, sim: fl
     return {"table": table, "quantity": quantity, "unit": unit, "paper": paper, "sim": sim, "ratio": ratio}
 
 
-def format_rows(title: str, rows: list[dict[str, Any]], band: float | None = None) -> str:
-    """Plain-text table of paper rows: quantity, paper, simulation, ratio; with ``band``, a ratio outside
-    [1/band, band] is marked."""
+def format_rows(title: str, rows: list[dict[str, Any]], band: float | None = TARGET_RATIO) -> str:
+    """Plain-text table of paper rows: quantity, paper, simulation, ratio; a ratio outside [1/band, band] is
+    marked (``band=None``: no marks)."""
     width = max([len(r["quantity"]) for r in rows] + [8])
     table_width = max([len(r["table"]) for r in rows] + [8])
     lines = [title, f"{'table':{table_width}s} {'quantity':{width}s} {'unit':5s} {'paper':>9s} {'sim':>9s} "

@@ -36,7 +36,7 @@ defaults then, both breaking the 30-65 % step fractions; ζ 0.6-0.8 scored 0.384
 steps per tick instead of 16 (25 % slower) and ζ 1 was kept for that reason, not for the fit.
 
 Two measurement-protocol quantities the paper leaves out are inferred in closed form (not fitted):
-* load-cell reading noise (``experiments.common.LOADCELL_READING_NOISE_N``): the flat sensor-feedback step
+* load-cell reading noise (``loadcell.reading_noise_n`` in ``sim.params``): the flat sensor-feedback step
   errors of Table VI are a measurement floor;
 * disturbance rate (``experiments.step.DISTURBANCE_RATE_NM_PER_S``): ramp-following error rate/Ki of the PI.
 

@@ -25,6 +25,13 @@ class ParameterError(ValueError):
     """A parameter set that is not physically valid; the message names the field and its valid range."""
 
 
+def range_text(low: float, high: float, *, low_open: bool = False) -> str:
+    """``[low, high]`` as accepted by a finite-number check: an infinite end is open (``inf`` is refused)."""
+    left = "(" if low_open or math.isinf(low) else "["
+    right = ")" if math.isinf(high) else "]"
+    return f"{left}{low:g}, {high:g}{right}"
+
+
 def quantity(default: float, unit: str, source: str, low: float = -INF, high: float = INF,
              *, low_open: bool = False) -> Any:
     """A dataclass field with unit, source and valid range ``[low, high]`` (``(low, high]`` if low_open)."""
@@ -197,6 +204,12 @@ class LoadCellParams:
         3.0e-4, "m", "assumed: typical S-beam deflection at rated capacity (0.2-0.5 mm); the tip support is "
         "this spring in series with the lever's bending", 0.0, 0.01, low_open=True)
     damping_ratio: float = quantity(0.02, "1", "assumed: light damping of the tip support", 0.0, 1.0)
+    reading_noise_n: float = quantity(
+        0.025, "N", "tuned: inferred in closed form from Table VI (experiments/identify_defaults.py): the "
+        "sensor-feedback step errors are flat across step sizes (0.0026, 0.0026, 0.0025 N·m), a measurement floor; the simulated loop alone "
+        "leaves ~0.0005 N·m, so sqrt(0.0026² - 0.0005²) / 0.1 m ≈ 0.025 N, white at 1 kHz (amplifier and ADC; "
+        "0.005 % of the 500 N capacity, what a 24-bit strain-gauge amplifier gives). Added to the logged force "
+        "after a run: the plant's loop never sees it", 0.0, 50.0)
 
 
 @dataclass(frozen=True)
@@ -384,10 +397,9 @@ def _validate_group(name: str, obj: Any) -> None:
         low, high = md["low"], md["high"]
         below = value <= low if md["low_open"] else value < low
         if not math.isfinite(value) or below or value > high:
-            bracket = "(" if md["low_open"] else "["
             unit = "" if md["unit"] == "1" else f" {md['unit']}"  # "1": dimensionless
             raise ParameterError(f"{name}.{f.name} = {value!r}{unit} is out of its valid range "
-                                 f"{bracket}{low:g}, {high:g}]{unit}")
+                                 f"{range_text(low, high, low_open=md['low_open'])}{unit}")
 
 
 def _validate_cross(p: TestbedParams) -> None:

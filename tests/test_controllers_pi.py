@@ -1,5 +1,7 @@
 """The PI torque controller against its closed-form discrete response; anti-windup bounds the integrator."""
 
+import math
+
 import numpy as np
 import pytest
 from hypothesis import given, settings
@@ -92,9 +94,30 @@ def test_without_antiwindup_the_integrator_winds_up():
 
 @pytest.mark.parametrize("field,value", [("output_limit_nm", 0.0), ("kp", -0.1), ("ki_per_s", float("nan")),
                                          ("period_s", 0.0), ("antiwindup_per_s", -1.0),
-                                         ("feedforward_gain", 1.5)])
+                                         ("feedforward_gain", -0.5), ("output_limit_nm", float("inf"))])
 def test_invalid_gains_are_refused_with_the_field_and_range(field, value):
-    """The error names the field and its valid range."""
+    """The error names the field and its valid range; an infinite end is shown open, as inf is refused."""
     kwargs = {"output_limit_nm": 18.0, field: value}
-    with pytest.raises(ValueError, match=f"{field} = .*valid range"):
+    with pytest.raises(ValueError, match=f"{field} = .*valid range [[(].*, inf\\)"):
         PITorqueController(**kwargs)
+
+
+@pytest.mark.parametrize("value", ["5", True, None])
+def test_gains_that_are_not_numbers_are_refused(value):
+    with pytest.raises(ValueError, match=r"kp = .*expected a number in \[0, inf\)"):
+        PITorqueController(output_limit_nm=18.0, kp=value)
+
+
+def test_feedforward_above_one_is_accepted_for_known_gear_losses():
+    assert PITorqueController(output_limit_nm=18.0, feedforward_gain=1.2).feedforward_gain == 1.2
+
+
+@pytest.mark.parametrize("ref,measured", [(0.1, float("nan")), (float("inf"), 0.0)])
+def test_a_non_finite_input_is_refused_and_leaves_the_integrator_untouched(ref, measured):
+    c = PITorqueController(output_limit_nm=18.0)
+    c.step(0.1, 0.05)
+    before = c.integrator_nm
+    with pytest.raises(ValueError, match="must be finite"):
+        c.step(ref, measured)
+    assert c.integrator_nm == before
+    assert math.isfinite(c.step(0.1, 0.1))

@@ -9,13 +9,15 @@ from experiments.paper import ACTUATION_LEVEL, actuation
 
 
 def test_format_rows_marks_the_ratios_outside_the_band_and_only_those():
-    """With band=1.5, 0.6 and 1.6 are marked, 0.7, 1.4 and a missing ratio are not."""
+    """With band=1.5 (the default), 0.6 and 1.6 are marked, 0.7, 1.4 and a missing ratio are not; band=None
+    marks none."""
     rows = [paper_row("VI", name, "N·m", 1.0, sim) for name, sim in
             [("low", 0.6), ("in low", 0.7), ("in high", 1.4), ("high", 1.6), ("none", None)]]
     lines = format_rows("t", rows, band=1.5).splitlines()[2:]
     marked = [line.split()[1] for line in lines if "outside a factor 1.5" in line]
     assert marked == ["low", "high"]
-    assert "outside" not in format_rows("t", rows)
+    assert format_rows("t", rows) == format_rows("t", rows, band=1.5)
+    assert "outside" not in format_rows("t", rows, band=None)
 
 
 @pytest.mark.parametrize("share, level, expected", [

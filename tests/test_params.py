@@ -37,7 +37,7 @@ def test_toml_override_applies_and_leaves_the_file_untouched(tmp_path):
     ("[gearbox]\nratio = 8\n", "unknown parameter group [gearbox]"),
     ("[motor]\ngear_ratio = 'eight'\n", "motor.gear_ratio = 'eight': expected a number"),
     ("[flexure]\nspoke_count = 4.5\n", "flexure.spoke_count = 4.5: expected an integer"),
-    ("[friction]\npresliding_stiffness_nm_per_rad = -10.0\n", "valid range (0, inf]"),
+    ("[friction]\npresliding_stiffness_nm_per_rad = -10.0\n", "valid range (0, inf)"),
     ("[motor]\nrotor_inertia_kgm2 = 0\n", "motor.rotor_inertia_kgm2 = 0.0 kg·m² is out of its valid range (0, 1]"),
     ("[photoreflector]\nreference_gain_error = 0.02\n",
      "photoreflector.reference_gain_error = 0.02 is out of its valid range [-0.01, 0.01]"),

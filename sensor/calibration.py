@@ -59,6 +59,7 @@ from __future__ import annotations
 
 import functools
 import math
+import threading
 import time
 from dataclasses import asdict, dataclass, field
 from typing import Any, Literal
@@ -79,6 +80,7 @@ __all__ = [
     "FEASIBILITY_TOL_FRACTION_FS",
     "DEFAULT_GAMMA_GRID",
     "DEFAULT_LAMBDA_WEIGHT",
+    "MAX_GAMMA",
     "Calibration",
     "SolveDiagnostics",
     "GammaSelection",
@@ -122,6 +124,12 @@ DEFAULT_GAMMA_GRID = np.logspace(-2.0, 4.0, 13)
 DEFAULT_LAMBDA_WEIGHT = 1.0
 """Weight lambda [-] of the quiet-segment variance in the gamma criterion (paper: no value; 1.0
 weighs the two squared torques [N^2 m^2] equally)."""
+
+MAX_GAMMA = 1e8
+"""Largest accepted ``gamma``. Beyond it the penalty outweighs the data term so far that the small QPs lose the
+accuracy the cutting plane relies on: at 1e10-1e20 feasible problems stalled or were called incompatible
+(session-18 review), while 432 cases up to 1e9 (N = 300-3000, e_max 1.01x the smallest to 0.2 % FS, both
+ways of checking rows) all met the bound. The paper's grid ends at 1e4."""
 
 MIN_QUIET_SAMPLES = N_COEFFICIENTS + 1
 """Fewest quiet-segment samples accepted: the centred quiet block must be able to span all 24
@@ -447,6 +455,14 @@ def _check_positive(name: str, value: float, *, allow_inf: bool = False, allow_z
     return value
 
 
+def _check_gamma(gamma: float) -> float:
+    gamma = _check_positive("gamma", gamma, allow_zero=True)
+    if gamma > MAX_GAMMA:
+        raise ValueError(f"gamma = {gamma:g}: valid range [0, {MAX_GAMMA:g}] (a larger quiet-segment penalty "
+                         f"is beyond the accuracy of the small QPs; the paper's grid ends at 1e4)")
+    return gamma
+
+
 # --- Public helpers ---------------------------------------------------------------------------------
 def design_matrix(v: np.ndarray) -> np.ndarray:
     """The paper's design matrix ``A = [x^3 x^2 x 1]`` (Eq. 10).
@@ -509,18 +525,35 @@ def _blas_controller() -> threadpoolctl.ThreadpoolController:
     return threadpoolctl.ThreadpoolController()
 
 
+_blas_lock = threading.Lock()
+_blas_fits_running = 0          # fits inside _single_threaded_blas, all threads (guarded by _blas_lock)
+_blas_limiter = None            # the limit the first of them set; the last one restores it
+
+
 def _single_threaded_blas(fit):
     """Run ``fit`` with one BLAS thread.
 
     Every BLAS call here is small (25 columns): with OpenBLAS's worker threads each call paid about a
     millisecond of thread wake-up on the 2-core development machine, so the QP at N = 1e6 took
     1.3-1.8x longer with two threads than with one (``benchmarks/README.md``). The limit is
-    process-wide while ``fit`` runs and is restored afterwards.
+    process-wide while any fit runs: the first fit to start sets it and the last to finish restores the
+    thread counts found before, also when fits run concurrently in threads.
     """
     @functools.wraps(fit)
     def wrapper(*args, **kwargs):
-        with _blas_controller().limit(limits=1, user_api="blas"):
+        global _blas_fits_running, _blas_limiter
+        with _blas_lock:
+            if _blas_fits_running == 0:
+                _blas_limiter = _blas_controller().limit(limits=1, user_api="blas")
+            _blas_fits_running += 1
+        try:
             return fit(*args, **kwargs)
+        finally:
+            with _blas_lock:
+                _blas_fits_running -= 1
+                if _blas_fits_running == 0:
+                    _blas_limiter.restore_original_limits()
+                    _blas_limiter = None
     return wrapper
 
 
@@ -1176,7 +1209,8 @@ def fit_qp(v: np.ndarray, tau_ref: np.ndarray, *, gamma: float, quiet_mask: np.n
     tau_ref : numpy.ndarray, shape (N,)
         Reference torque ``y`` [N m].
     gamma : float
-        Quiet-segment penalty weight ``gamma >= 0`` [-] (paper: chosen by :func:`select_gamma`).
+        Quiet-segment penalty weight [-], in ``[0, MAX_GAMMA]`` = [0, 1e8] (paper: chosen by
+        :func:`select_gamma`).
     quiet_mask : numpy.ndarray of bool, shape (N,)
         Quiet segment ``I_0`` (see :func:`quiet_segment_mask`), at least 26 samples.
     e_max_nm : float
@@ -1196,7 +1230,7 @@ def fit_qp(v: np.ndarray, tau_ref: np.ndarray, *, gamma: float, quiet_mask: np.n
     InfeasibleCalibrationError
         If no ``theta`` meets the bound; ``.smallest_feasible_e_max_nm`` holds the minimax LP value.
     """
-    gamma = _check_positive("gamma", gamma, allow_zero=True)
+    gamma = _check_gamma(gamma)
     e_max_nm = _check_positive("e_max_nm", e_max_nm, allow_inf=True)
     t0 = time.perf_counter()
     solver = _prepare_qp(v, tau_ref, quiet_mask, fs_nm)
@@ -1239,8 +1273,8 @@ def select_gamma(v: np.ndarray, tau_ref: np.ndarray, *, quiet_mask: np.ndarray,
     the RMSE term and the variance term falls with gamma, ``lambda`` alone sets the trade-off.
     """
     g = np.sort(np.asarray(gammas, dtype=float).ravel())
-    if g.size == 0 or np.any(~np.isfinite(g)) or np.any(g < 0):
-        raise ValueError(f"gammas must be a non-empty array of finite values >= 0; got {gammas!r}")
+    if g.size == 0 or np.any(~np.isfinite(g)) or np.any(g < 0) or np.any(g > MAX_GAMMA):
+        raise ValueError(f"gammas must be a non-empty array of values in [0, {MAX_GAMMA:g}]; got {gammas!r}")
     lam = _check_positive("lambda_weight", lambda_weight, allow_zero=True)
     e_max_nm = _check_positive("e_max_nm", e_max_nm, allow_inf=True)
     solver = _prepare_qp(v, tau_ref, quiet_mask, fs_nm)

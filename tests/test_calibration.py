@@ -9,10 +9,12 @@ from __future__ import annotations
 
 import json
 import math
+import threading
 import re
 
 import numpy as np
 import pytest
+import threadpoolctl
 import qpsolvers
 import scipy.optimize
 from hypothesis import HealthCheck, assume, given, settings
@@ -258,6 +260,56 @@ def test_candidate_rows_save_passes_over_all_rows_and_give_the_same_solution(mon
     assert every.diagnostics.full_passes == every.diagnostics.iterations >= 3
     assert fit.diagnostics.full_passes < every.diagnostics.full_passes
     np.testing.assert_allclose(fit.predict(v), every.predict(v), rtol=0, atol=FULL_QP_PRED_ATOL_NM)
+
+
+@pytest.mark.parametrize("call", ["fit_qp", "select_gamma"])
+def test_gamma_above_its_valid_range_is_refused_naming_the_range(call):
+    """gamma > MAX_GAMMA (1e8) is refused before any solve: at 1e10-1e20 the small QPs lost accuracy."""
+    v, tau, mask = _realistic(300, 0)
+    with pytest.raises(ValueError, match=r"gamma.*\[0, 1e\+08\]"):
+        if call == "fit_qp":
+            cal.fit_qp(v, tau, gamma=1e9, quiet_mask=mask)
+        else:
+            cal.select_gamma(v, tau, quiet_mask=mask, gammas=[1.0, 1e9])
+    assert cal.fit_qp(v, tau, gamma=cal.MAX_GAMMA, quiet_mask=mask).gamma == cal.MAX_GAMMA
+
+
+def test_fits_overlapping_in_threads_restore_the_blas_threads_found_before():
+    """Fit A starts, fit B starts, A ends, B ends (two worker threads): afterwards BLAS has the thread count
+    it had before (each fit restoring what it found at its start left 1 for good). A fit in the calling
+    thread runs on one BLAS thread."""
+    def blas_threads():
+        return sorted({i["num_threads"] for i in threadpoolctl.threadpool_info() if i["user_api"] == "blas"})
+
+    before = blas_threads()
+    if before == [1]:
+        pytest.skip("BLAS runs on one thread here: nothing to restore")
+    a_in, b_in, a_out = threading.Event(), threading.Event(), threading.Event()
+
+    @cal._single_threaded_blas
+    def fit_a():
+        a_in.set()
+        b_in.wait(10)
+
+    @cal._single_threaded_blas
+    def fit_b():
+        b_in.set()
+        a_out.wait(10)
+
+    @cal._single_threaded_blas
+    def fit_here():
+        return blas_threads()
+
+    assert fit_here() == [1]
+    thread_a = threading.Thread(target=fit_a)
+    thread_a.start()
+    a_in.wait(10)
+    thread_b = threading.Thread(target=fit_b)
+    thread_b.start()
+    thread_a.join()
+    a_out.set()
+    thread_b.join()
+    assert blas_threads() == before
 
 
 @pytest.mark.parametrize("e_max_nm", [math.inf, 1e6])

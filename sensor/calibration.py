@@ -44,9 +44,9 @@ The 2N inequality constraints are handled by an exact cutting-plane (working-set
 the current working set, evaluate ``A theta - y`` on all rows (one O(N 25) pass), add the most violated
 rows (the worst of each run of neighbouring violations first), repeat until no row exceeds ``e_max``
 by more than ``feasibility_tol_nm = 1e-9 FS``. Between passes over all rows only a candidate subset is
-checked (the rows whose residual was above half the bound, at most 65 536): when the candidates meet
-the bound, a pass over all rows confirms it or starts a new candidate set, so the stopping test is
-always on all rows. All BLAS calls are small (25 columns) and run single-threaded. The small QPs go
+checked (the rows whose residual was above half the bound, at most 65 536; on a cold start with more than
+twice that many rows, an evenly spaced subset): when the candidates meet the bound, a pass over all rows
+confirms it or starts a new candidate set, so the stopping test is always on all rows. All BLAS calls are small (25 columns) and run single-threaded. The small QPs go
 to ProxQP through qpsolvers (solver name ``"proxqp"``, the ProxSuite solver) and are polished to the
 exact KKT point of their active set; if ProxQP reports failure on a working set that an LP shows to be
 feasible (its infeasibility test is loose for thin feasible sets), the projection is solved exactly by
@@ -1095,6 +1095,9 @@ class _QPSolver:
         cand = None       # the rows the next check covers (sorted indices); None: every row
         if self.rows.size:  # warm start from a previous gamma: those rows are true constraints
             w = self._solve_working_set(u, d, w, e_max_nm)
+        elif v.shape[0] > 2 * MAX_CANDIDATE_ROWS:   # cold start: first settle on an evenly spaced subset
+            cand = np.arange(0, v.shape[0], -(-v.shape[0] // MAX_CANDIDATE_ROWS))
+            v_cand, y_cand = v[cand], y[cand]
         while True:
             theta = _theta_from_z(scipy.linalg.solve_triangular(u, w), fac)
             if cand is not None:

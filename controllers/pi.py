@@ -70,7 +70,8 @@ class PITorqueController:
     output_limit_nm : float
         Largest command magnitude the motor can give [N·m] (the plant's peak torque).
     kp : float
-        Proportional gain [-].
+        Proportional gain [-], >= 0; no upper bound is imposed, as the stable range depends on the plant
+        (on the one-tick ideal plant of the tests the loop is unstable above about 1).
     ki_per_s : float
         Integral gain [1/s].
     antiwindup_per_s : float

@@ -261,8 +261,8 @@ def short_run_banner(args: argparse.Namespace) -> None:
     """With --duration, say before the tables that their figures are not comparable with the paper's."""
     if getattr(args, "duration", None) is not None:
         kind = "SHORT RUN" if args.duration < SHORTEST_FULL_TEST_S else "RUN AT A SET LENGTH"
-        print(f"{kind} (--duration {args.duration:g} s): the tests ran with this length instead of their full "
-              f"ones; the figures below are not comparable with the paper's")
+        print(f"{kind} (--duration {args.duration:g} s): the tests' holds, windows and pushes were set from it "
+              f"instead of the paper protocol's; the figures below are not comparable with the paper's")
 
 
 def feedback_kinds(choice: str) -> tuple[str, ...]:
@@ -273,16 +273,26 @@ def feedback_kinds(choice: str) -> tuple[str, ...]:
 LOADCELL_NOISE_STREAM = 0x10AD  # spawn key separating the load cell's noise from the sensor's for one seed
 
 
-def loadcell_torque_nm(log, seed: int | None = None) -> np.ndarray:
+def loadcell_torque_nm(log, seed: int | None = None, noise_n: float | None = None) -> np.ndarray:
     """The torque the load cell reports, force x lever length [N·m], from a run log.
 
-    With ``seed`` the reading carries the load cell's white noise (standard deviation
-    ``loadcell.reading_noise_n`` [N] of the run's parameters, from the log's metadata, drawn from its own
-    stream of ``seed``); without it, the true force.
+    With ``seed`` the reading carries the load cell's white noise, drawn from its own stream of ``seed``, of
+    standard deviation ``noise_n`` [N], by default the run's ``loadcell.reading_noise_n`` from the log's
+    metadata (``controllers.loop`` writes it); without ``seed``, the true force.
+
+    Raises
+    ------
+    ValueError
+        If ``seed`` is given, ``noise_n`` is not, and the log's metadata lack ``loadcell_reading_noise_n``.
     """
     torque = log["force_loadcell"] * log.meta["lever_length_m"]
-    noise_n = log.meta["loadcell_reading_noise_n"] if seed is not None else 0.0
-    if noise_n == 0.0:
+    if seed is not None and noise_n is None:
+        if "loadcell_reading_noise_n" not in log.meta:
+            raise ValueError("the log's metadata lack 'loadcell_reading_noise_n' (logs made before it was recorded, "
+                             "or not by controllers.loop): pass noise_n, e.g. TestbedParams().loadcell."
+                             "reading_noise_n (N)")
+        noise_n = log.meta["loadcell_reading_noise_n"]
+    if seed is None or noise_n == 0.0:
         return torque
     rng = np.random.default_rng([seed, LOADCELL_NOISE_STREAM])
     return torque + rng.normal(0.0, noise_n * log.meta["lever_length_m"], len(torque))

@@ -174,8 +174,8 @@ def markdown_report(result: PaperResult, directory: Path) -> str:
                                         f"**short run ({result.duration_s:g} s per test): a check of the command "
                                         f"line, not comparable with the paper's figures.**"
                                         if result.duration_s < SHORTEST_FULL_TEST_S else
-                                        f"**tests run at a set length ({result.duration_s:g} s each) instead of "
-                                        f"their full ones: not comparable with the paper's figures.**"), "",
+                                        f"**tests run at a set length (--duration {result.duration_s:g} s) instead "
+                                        f"of the paper protocol's: not comparable with the paper's figures.**"), "",
              "| table | quantity | unit | paper | sim | ratio |", "|---|---|---|---|---|---|"]
 
     def num(x):

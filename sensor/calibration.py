@@ -57,10 +57,12 @@ the smallest feasible bound is found by a minimax LP (HiGHS), also by a cutting 
 
 from __future__ import annotations
 
+import contextlib
 import functools
 import math
 import threading
 import time
+import warnings
 from dataclasses import asdict, dataclass, field
 from typing import Any, Literal
 
@@ -125,11 +127,13 @@ DEFAULT_LAMBDA_WEIGHT = 1.0
 """Weight lambda [-] of the quiet-segment variance in the gamma criterion (paper: no value; 1.0
 weighs the two squared torques [N^2 m^2] equally)."""
 
-MAX_GAMMA = 1e8
-"""Largest accepted ``gamma``. Beyond it the penalty outweighs the data term so far that the small QPs lose the
-accuracy the cutting plane relies on: at 1e10-1e20 feasible problems stalled or were called incompatible
-(session-18 review), while 432 cases up to 1e9 (N = 300-3000, e_max 1.01x the smallest to 0.2 % FS, both
-ways of checking rows) all met the bound. The paper's grid ends at 1e4."""
+MAX_GAMMA = 1e6
+"""Largest accepted ``gamma``, 100x below the smallest at which a feasible problem failed. A large penalty
+outweighs the data term so far that the small QPs lose the accuracy the cutting plane relies on: at 1e10-1e20
+feasible problems stalled or were called incompatible, and at 1e8 one of 480 fits stalled with a bound
+1.0001x the smallest feasible one and 16 candidate rows (session-18 reviews); every fit up to 1e7 of those
+and of 432 others (N = 300-3000, bounds 1.0001x the smallest to 0.2 % FS, both ways of checking rows) met
+the bound. The paper's grid ends at 1e4."""
 
 MIN_QUIET_SAMPLES = N_COEFFICIENTS + 1
 """Fewest quiet-segment samples accepted: the centred quiet block must be able to span all 24
@@ -527,33 +531,39 @@ def _blas_controller() -> threadpoolctl.ThreadpoolController:
 
 _blas_lock = threading.Lock()
 _blas_fits_running = 0          # fits inside _single_threaded_blas, all threads (guarded by _blas_lock)
-_blas_limiter = None            # the limit the first of them set; the last one restores it
 
 
 def _single_threaded_blas(fit):
-    """Run ``fit`` with one BLAS thread.
+    """Run ``fit`` with one BLAS thread: a speed-up only, never a condition of the result.
 
     Every BLAS call here is small (25 columns): with OpenBLAS's worker threads each call paid about a
     millisecond of thread wake-up on the 2-core development machine, so the QP at N = 1e6 took
-    1.3-1.8x longer with two threads than with one (``benchmarks/README.md``). The limit is
-    process-wide while any fit runs: the first fit to start sets it and the last to finish restores the
-    thread counts found before, also when fits run concurrently in threads.
+    1.3-1.8x longer with two threads than with one (``benchmarks/README.md``). OpenBLAS has one
+    process-wide thread count, which threadpoolctl lets only one Python thread change at a time and
+    restores in that thread when its ``with`` block ends. So a fit that starts while no other fit runs
+    sets the limit for its duration (in a ``with`` block, in its own thread) and restores what it found;
+    fits that start while another runs, in other threads, run under whatever limit is in force. If
+    threadpoolctl cannot work here the fit runs without the limit.
     """
     @functools.wraps(fit)
     def wrapper(*args, **kwargs):
-        global _blas_fits_running, _blas_limiter
+        global _blas_fits_running
         with _blas_lock:
-            if _blas_fits_running == 0:
-                _blas_limiter = _blas_controller().limit(limits=1, user_api="blas")
+            first = _blas_fits_running == 0
             _blas_fits_running += 1
         try:
-            return fit(*args, **kwargs)
+            limit = contextlib.nullcontext()
+            if first:
+                try:
+                    limit = _blas_controller().limit(limits=1, user_api="blas")
+                except Exception as exc:  # the limit is a speed-up: never let it stop a fit
+                    warnings.warn(f"BLAS threads not limited ({exc!r}): the fit runs at the default count",
+                                  RuntimeWarning, stacklevel=2)
+            with limit:
+                return fit(*args, **kwargs)
         finally:
             with _blas_lock:
                 _blas_fits_running -= 1
-                if _blas_fits_running == 0:
-                    _blas_limiter.restore_original_limits()
-                    _blas_limiter = None
     return wrapper
 
 
@@ -1150,7 +1160,8 @@ class _QPSolver:
         if new.size == 0:
             raise RuntimeError("QP cutting plane stalled: the only violated rows are already in "
                                "the working set (small-QP accuracy below the feasibility "
-                               f"tolerance {self.tol_nm:.3g} N m)")
+                               f"tolerance {self.tol_nm:.3g} N m); likely causes: a large gamma or an "
+                               "e_max within a fraction of a percent of the smallest feasible one")
         new_signs = np.where(r[new] >= 0, 1, -1)
         return (new if cand is None else cand[new]), new_signs
 
@@ -1212,7 +1223,7 @@ def fit_qp(v: np.ndarray, tau_ref: np.ndarray, *, gamma: float, quiet_mask: np.n
     tau_ref : numpy.ndarray, shape (N,)
         Reference torque ``y`` [N m].
     gamma : float
-        Quiet-segment penalty weight [-], in ``[0, MAX_GAMMA]`` = [0, 1e8] (paper: chosen by
+        Quiet-segment penalty weight [-], in ``[0, MAX_GAMMA]`` = [0, 1e6] (paper: chosen by
         :func:`select_gamma`).
     quiet_mask : numpy.ndarray of bool, shape (N,)
         Quiet segment ``I_0`` (see :func:`quiet_segment_mask`), at least 26 samples.

@@ -106,7 +106,7 @@ def test_a_control_period_the_admittance_controller_cannot_discretise_is_a_usage
                                           (("--seed", "-1"), "valid seeds are integers >= 0"),
                                           (("--feedback", "torque"), "--feedback")])
 def test_bad_flags_are_usage_errors_naming_the_flag(args, message):
-    """A duration outside [10 ms, 1 h], a negative seed or an unknown feedback exits with status 2, names the flag
+    """A duration outside [10 ms, 120 s], a negative seed or an unknown feedback exits with status 2, names the flag
     and its valid range, before anything runs."""
     result = run("experiments.step", *args)
     assert result.returncode == 2 and message in result.stderr and "Traceback" not in result.stderr

@@ -44,13 +44,14 @@ The 2N inequality constraints are handled by an exact cutting-plane (working-set
 the current working set, evaluate ``A theta - y`` on all rows (one O(N 25) pass), add the most violated
 rows (the worst of each run of neighbouring violations first), repeat until no row exceeds ``e_max``
 by more than ``feasibility_tol_nm = 1e-9 FS``. Between passes over all rows only a candidate subset is
-checked (the rows whose residual was above half the bound, at most 65 536; on a cold start with more than
-twice that many rows, an evenly spaced subset): when the candidates meet the bound, a pass over all rows
-confirms it or starts a new candidate set, so the stopping test is always on all rows. All BLAS calls are small (25 columns) and run single-threaded. The small QPs go
-to ProxQP through qpsolvers (solver name ``"proxqp"``, the ProxSuite solver) and are polished to the
-exact KKT point of their active set; if ProxQP reports failure on a working set that an LP shows to be
-feasible (its infeasibility test is loose for thin feasible sets), the projection is solved exactly by
-Lawson-Hanson least-distance programming (``scipy.optimize.nnls``). Because every working set is a subset of the true constraints,
+checked (the rows whose residual was above half the bound, at most 65 536; on a cold start with more
+than twice that many rows, an evenly spaced subset): when the candidates meet the bound, a pass over all
+rows confirms it or starts a new candidate set, so the stopping test is always on all rows. All BLAS
+calls are small (25 columns) and run single-threaded. The small QPs go to ProxQP through qpsolvers
+(solver name ``"proxqp"``, the ProxSuite solver) and are polished to the exact KKT point of their active
+set; if ProxQP reports failure on a working set that an LP shows to be feasible (its infeasibility test
+is loose for thin feasible sets), the projection is solved exactly by Lawson-Hanson least-distance
+programming (``scipy.optimize.nnls``). Because every working set is a subset of the true constraints,
 the final point solves the full problem; if a working set is infeasible, so is the full problem, and
 the smallest feasible bound is found by a minimax LP (HiGHS), also by a cutting plane over rows.
 """

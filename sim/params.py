@@ -206,8 +206,8 @@ class LoadCellParams:
     damping_ratio: float = quantity(0.02, "1", "assumed: light damping of the tip support", 0.0, 1.0)
     reading_noise_n: float = quantity(
         0.025, "N", "tuned: inferred in closed form from Table VI (experiments/identify_defaults.py): the "
-        "sensor-feedback step errors are flat across step sizes (0.0026, 0.0026, 0.0025 N·m), a measurement floor; the simulated loop alone "
-        "leaves ~0.0005 N·m, so sqrt(0.0026² - 0.0005²) / 0.1 m ≈ 0.025 N, white at 1 kHz (amplifier and ADC; "
+        "sensor-feedback step errors are flat across step sizes (0.0026, 0.0026, 0.0025 N·m), a measurement "
+        "floor; the simulated loop alone leaves ~0.0005 N·m, so sqrt(0.0026² - 0.0005²) / 0.1 m ≈ 0.025 N, white at 1 kHz (amplifier and ADC; "
         "0.005 % of the 500 N capacity, what a 24-bit strain-gauge amplifier gives). Added to the logged force "
         "after a run: the plant's loop never sees it", 0.0, 50.0)
 

@@ -47,8 +47,8 @@ def test_seed_arg_takes_non_negative_integers_only():
 
 
 def _loadcell_log(meta):
-    return RunLog({"time": np.arange(4) * 1e-3, "force_loadcell": np.full(4, 2.0)}, {"time": "s", "force_loadcell": "N"},
-                  {"fixture": "locked", "lever_length_m": 0.1, **meta})
+    return RunLog({"time": np.arange(4) * 1e-3, "force_loadcell": np.full(4, 2.0)},
+                  {"time": "s", "force_loadcell": "N"}, {"fixture": "locked", "lever_length_m": 0.1, **meta})
 
 
 def test_loadcell_reading_uses_the_logged_noise_and_names_it_when_missing():

@@ -1,11 +1,13 @@
 """What the simulation gets wrong on a measured log, which effect causes it, and how much the fix predicts.
 
-    python -m experiments.discrepancy LOG --rig RIG.toml [--json OUT] [--plot DIR] [--save-rig OUT.toml]
-                                      [--workers N] [--no-replay] [--rerun PATH.rrd] [--rerun-spawn]
+    python -m experiments.discrepancy LOG [LOG ...] --rig RIG.toml [--validate LOG ...] [--json OUT] [--plot DIR]
+                                      [--save-rig OUT.toml] [--workers N] [--no-replay] [--unwrap]
+                                      [--max-jitter FRACTION] [--rerun PATH.rrd] [--rerun-spawn]
 
-LOG is a run log (CSV, Parquet or .mat, docs/run_log_format.md); RIG.toml describes what produced it
-(docs/discrepancy.md); the joint (hinge or slide) comes from the rig. Neither file is modified. Progress goes
-to stderr.
+LOG is a run log (CSV, Parquet or .mat, docs/run_log_format.md); several logs of one rig are fitted together.
+RIG.toml describes what produced them (docs/discrepancy.md); the joint (hinge or slide) comes from the rig.
+--validate names validation logs: the estimation logs are then fitted whole and every candidate and the final
+model are scored on the validation logs. No input file is modified. Progress goes to stderr.
 
 --rerun / --rerun-spawn record the measured log as the run ``/measured_<LOG stem>``: a testbed log with the
 plant's columns as a simulated run is (3D testbed, torques, voltages, temperature) plus its angles under
@@ -23,6 +25,7 @@ from pathlib import Path
 from experiments.common import (add_output_args, add_rerun_args, check_output_paths, cli_parser, positive_int,
                                 record_rerun, write_outputs)
 from sim.discrepancy.analysis import DiscrepancyResult, analyse
+from sim.discrepancy.checks import InputError
 from sim.discrepancy.report import format_result, plot_result
 from sim.discrepancy.rig import Rig, RigError, load_rig, save_rig
 from sim.discrepancy.signals import AnalysisConfig
@@ -73,10 +76,24 @@ def measured_series(log: RunLog, rig: Rig, result: DiscrepancyResult) -> dict[st
     return groups
 
 
+def jitter_fraction(text: str) -> float:
+    value = float(text)
+    if not value >= 0:
+        raise ValueError(text)
+    return value
+
+
 def main(argv: list[str] | None = None) -> None:
     parser = cli_parser(__doc__, __spec__.name)
-    parser.add_argument("log", type=Path, help="run log (.csv, .parquet, .mat)")
+    parser.add_argument("log", type=Path, nargs="+", help="run log(s) of one rig (.csv, .parquet, .mat), fitted together")
     parser.add_argument("--rig", type=Path, required=True, metavar="TOML", help="rig description")
+    parser.add_argument("--validate", type=Path, nargs="+", default=[], metavar="LOG",
+                        help="validation log(s) of the same rig: fit the estimation logs whole, score on these")
+    parser.add_argument("--unwrap", action="store_true",
+                        help="unwrap hinge angles that jump by 2π (an encoder wrapped to one turn)")
+    parser.add_argument("--max-jitter", type=jitter_fraction, default=0.05, metavar="FRACTION",
+                        help="largest accepted relative deviation of a sampling step from the median step "
+                             "(default 0.05; servo logs with irregular sampling may need more)")
     add_output_args(parser, "write the result as JSON")
     parser.add_argument("--save-rig", type=Path, metavar="TOML", help="write the extended rig (must not exist)")
     parser.add_argument("--workers", type=positive_int, default=2, help="processes for the candidate fits (default 2)")
@@ -84,31 +101,39 @@ def main(argv: list[str] | None = None) -> None:
     add_rerun_args(parser, "the measured log (3D testbed if it has the plant's columns, time series), the "
                            "residuals before and after, and the replay of the held-out part if it ran")
     args = parser.parse_args(argv)
-    check_output_paths(parser, args, inputs=(args.log, args.rig))
+    paths = [*args.log, *args.validate]
+    check_output_paths(parser, args, inputs=(*paths, args.rig))
     try:
         rig = load_rig(args.rig)
     except RigError as exc:
         parser.error(str(exc))
     if args.save_rig is not None and args.save_rig.exists():
         parser.error(f"--save-rig {args.save_rig} exists; choose a new file (inputs are never overwritten)")
+    logs = []
+    for path in paths:
+        try:
+            logs.append(read_log(path, joint=rig.joint, max_jitter=args.max_jitter))
+        except (LogError, FileNotFoundError) as exc:
+            parser.error(f"{path}: {exc}")
+    n = len(args.log)
     try:
-        log = read_log(args.log, joint=rig.joint)
-    except (LogError, FileNotFoundError) as exc:
-        parser.error(f"{args.log}: {exc}")
-    try:
-        result = analyse(log, rig, AnalysisConfig(workers=args.workers), progress=True,
-                         replay=not args.no_replay)
+        result = analyse(logs[0], rig, AnalysisConfig(workers=args.workers), progress=True,
+                         replay=not args.no_replay, also=tuple(logs[1:n]), validation=tuple(logs[n:]),
+                         names=tuple(p.name for p in paths), unwrap=args.unwrap)
+    except InputError as exc:
+        parser.error(f"{args.log[0] if n == 1 and not args.validate else 'the logs'}: {exc}")
     except (RigError, ValueError) as exc:
         parser.error(str(exc))
     print(format_result(result))
     write_outputs(args, result.to_dict(), lambda directory: plot_result(result, directory))
     if args.save_rig:
-        header = (f"Extended rig written by experiments.discrepancy from {args.log.name} and {args.rig.name}.\n"
+        header = (f"Extended rig written by experiments.discrepancy from {', '.join(p.name for p in paths)} and "
+                  f"{args.rig.name}.\n"
                   f"Findings: {', '.join(result.found) or 'none'}.")
         print(f"wrote {save_rig(result.extended_rig, args.save_rig, header=header)}")
-    name = run_name(args.log)
-    record_rerun(args, lambda: {name: measured_run(log, rig)}, rig.params,
-                 lambda: {name: measured_series(log, rig, result)})
+    name = run_name(args.log[0])
+    record_rerun(args, lambda: {name: measured_run(logs[0], rig)}, rig.params,
+                 lambda: {name: measured_series(logs[0], rig, result)})
     sys.stdout.flush()
 
 

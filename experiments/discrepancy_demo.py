@@ -18,10 +18,10 @@ import sys
 from pathlib import Path
 
 from experiments.common import cli_parser, run_seconds, seed_arg
-from sim.discrepancy.effects import EFFECTS, TESTBED_ONLY
+from sim.discrepancy.effects import EFFECTS
 from sim.discrepancy.rig import save_rig
 from sim.discrepancy.synth import (EXPERIMENTS, FINE_MOTOR_ENCODER_COUNTS, MOTOR_ENCODER_COUNTS, REVEALING_EXPERIMENT,
-                                   hidden_effect_log)
+                                   baseline_rig, hidden_effect_log)
 from sim.logio import write_log
 
 DEFAULT_EFFECT = "coulomb_friction"
@@ -42,9 +42,9 @@ def main(argv: list[str] | None = None) -> None:
     args = parser.parse_args(argv)
     experiment = args.experiment or REVEALING_EXPERIMENT[args.effect]
     spec = EFFECTS[args.effect]
-    if experiment == "slide" and (spec.rigs == TESTBED_ONLY or spec.channel == "sensor"):
-        parser.error(f"--effect {args.effect} needs the testbed (the slide has no gear, backlash or torque sensor); "
-                     f"its experiment is {REVEALING_EXPERIMENT[args.effect]!r}")
+    if not spec.applies(baseline_rig(experiment)):
+        parser.error(f"--effect {args.effect} does not apply to the rig of the {experiment!r} experiment (it applies "
+                     f"to: {', '.join(sorted(spec.rigs))}); its experiment is {REVEALING_EXPERIMENT[args.effect]!r}")
     if experiment != REVEALING_EXPERIMENT[args.effect]:
         print(f"note: {args.effect} is revealed by the {REVEALING_EXPERIMENT[args.effect]!r} experiment; from "
               f"{experiment!r} the analysis may not name it or recover its value", file=sys.stderr)

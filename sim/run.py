@@ -9,7 +9,7 @@ from typing import TextIO
 import numpy as np
 
 from sim.plant import SIGNAL_UNITS, Plant
-from sim.runlog import RunLog
+from sim.runlog import HOLD_END, RunLog
 
 PROGRESS_MIN_TICKS = 20_000  # report progress only on runs longer than 20 s of simulated time
 
@@ -80,4 +80,4 @@ def run_open_loop(plant: Plant, tau_cmd_nm: np.ndarray, tau_ext_nm: np.ndarray |
     columns = signal_columns(out, times, {"tau_ext": tau_ext_nm.copy()})
     units = {"time": "s", **SIGNAL_UNITS, "tau_ext": "N·m"}
     return RunLog(columns, units, {"fixture": plant.fixture, "physics_timestep_s": plant.timestep_s,
-                                   "substeps": plant.n_substeps, **(meta or {})})
+                                   "substeps": plant.n_substeps, "time_convention": HOLD_END, **(meta or {})})

@@ -29,6 +29,14 @@ STANDARD_UNITS: dict[str, str] = {
 }
 
 
+# Time conventions of a log's rows (meta key "time_convention"; docs/run_log_format.md): "hold_end" stamps row k
+# at the end of the hold of its command, with the state measured then (the command of row k acted on the state
+# of row k); "command" stamps it when its command was computed from the state measured then (the command of
+# row k acts on the state of row k + 1). The project's own logs are "hold_end".
+HOLD_END, COMMAND = "hold_end", "command"
+TIME_CONVENTIONS = (HOLD_END, COMMAND)
+
+
 def add_voltage_columns(columns: dict[str, np.ndarray], units: dict[str, str], voltages_v: np.ndarray) -> None:
     """Add the photo-reflector channel voltages, an (N, channels) array [V], as the standard columns v1, v2, ..."""
     volts = np.asarray(voltages_v, dtype=float)

@@ -73,7 +73,8 @@ def test_discrepancy_demo_writes_a_log_whose_hidden_effect_the_analysis_names(tm
     result = run("experiments.discrepancy", str(tmp_path / "demo_log.csv"), "--rig", str(tmp_path / "demo_rig.toml"),
                  "--no-replay", "--plot", str(tmp_path))
     assert result.returncode == 0, result.stderr
-    found = result.stdout.split("1. coulomb_friction: coulomb = ")[1].split()[0]
+    line = next(line for line in result.stdout.splitlines() if line.strip().startswith("1. coulomb_friction"))
+    found = line.split("coulomb = ")[1].split()[0]
     assert float(found) == pytest.approx(hidden, rel=0.05)
     again = run("experiments.discrepancy_demo", "--out", str(tmp_path))
     assert again.returncode == 2 and "exists" in again.stderr

@@ -279,25 +279,30 @@ def _measured(experiment, directory):
 
 def test_discrepancy_records_the_measured_testbed_log_and_residuals_without_replay(tmp_path, measured_locked):
     """A testbed log with the plant's columns records as a run (3D testbed, torques, temperature) with its
-    angles and the residuals before/after, every sample; --no-replay: no replay series."""
+    angles, every sample, and the residuals before/after, every analysis-grid sample; --no-replay: no replay
+    series."""
     from experiments import discrepancy
+    from sim.discrepancy.signals import AnalysisConfig, grid_step
 
     log_path, rig_path, n = measured_locked
+    n_grid = len(range(0, n, grid_step(AnalysisConfig(), 1e-3)))
     path = tmp_path / "d.rrd"
     discrepancy.main([str(log_path), "--rig", str(rig_path), "--workers", "1", "--no-replay", "--plot", str(tmp_path),
                       "--rerun", str(path)])
     rows, static = read_back(path)
     root = "/measured_bench"
     for entity in ("torque/command", "torque/loadcell", "torque/sensor", "temperature/board", "position/lever",
-                   "position/motor", "residual_effort/baseline", "residual_sensor/extended"):
+                   "position/motor"):
         assert rows[f"{root}/{entity}"] == n, entity
+    for entity in ("residual_effort/baseline", "residual_sensor/extended"):
+        assert rows[f"{root}/{entity}"] == n_grid, entity
     assert rows[f"{root}/testbed/torque"] == n // 20 and f"{root}/testbed/loadcell/boxes" in static
     assert not any("/replay" in e for e in rows)
 
 
 def test_discrepancy_records_the_replay_of_the_held_out_part(tmp_path, measured_locked):
-    """With the replay, the measured, baseline and extended load-cell torque of every held-out sample are
-    recorded under /<run>/replay, labelled in N·m."""
+    """With the replay, the measured, baseline and extended load-cell torque of every sample of the held-out
+    part are recorded under /<run>/replay, labelled in N·m."""
     import json
 
     from experiments import discrepancy
@@ -306,16 +311,20 @@ def test_discrepancy_records_the_replay_of_the_held_out_part(tmp_path, measured_
     path, out = tmp_path / "r.rrd", tmp_path / "r.json"
     discrepancy.main([str(log_path), "--rig", str(rig_path), "--workers", "1", "--json", str(out),
                       "--plot", str(tmp_path), "--rerun", str(path)])
-    held = json.loads(out.read_text())["baseline"]["split"]["held_out_samples"]
+    baseline = json.loads(out.read_text())["baseline"]
+    samples = baseline["replay"]["samples"]
+    split = baseline["split"]
+    assert abs(samples - split["held_out_samples"] * split["grid_step"]) <= split["grid_step"]  # the held-out part
     rows, _ = read_back(path)
-    assert [rows[f"/measured_bench/replay/{s}"] for s in ("measured", "baseline", "extended")] == [held] * 3
+    assert [rows[f"/measured_bench/replay/{s}"] for s in ("measured", "baseline", "extended")] == [samples] * 3
     assert series_labels(path, "/measured_bench/replay/") == {"measured [N·m]", "baseline [N·m]", "extended [N·m]"}
 
 
 def test_discrepancy_records_a_slide_log_as_series_without_testbed(tmp_path):
     """A rigid slide log has no testbed geometry: its force command and position are recorded as series
-    (with the residual), nothing under testbed/ or torque/."""
+    (with the residual, on the analysis grid), nothing under testbed/ or torque/."""
     from experiments import discrepancy
+    from sim.discrepancy.signals import AnalysisConfig, grid_step
 
     log_path, rig_path, n = _measured("slide", tmp_path)
     path = tmp_path / "s.rrd"
@@ -323,7 +332,7 @@ def test_discrepancy_records_a_slide_log_as_series_without_testbed(tmp_path):
                       "--rerun", str(path)])
     rows, static = read_back(path)
     assert rows["/measured_bench/effort/command"] == n and rows["/measured_bench/position/joint"] == n
-    assert rows["/measured_bench/residual_effort/baseline"] == n
+    assert rows["/measured_bench/residual_effort/baseline"] == len(range(0, n, grid_step(AnalysisConfig(), 1e-3)))
     assert series_labels(path, "/measured_bench/effort/") == {"command [N]"}
     assert series_labels(path, "/measured_bench/position/") == {"joint [m]"}
     assert not any("/testbed" in e or "/torque" in e for e in set(rows) | static)

@@ -4,93 +4,106 @@ Problem (per fit)::
 
     minimise_x  Σ_c Σ_{k ∈ fit_c} ( r_c,k(θ(x)) / s_c )²      subject to  lo <= x <= hi
 
-``r_c`` the residual channel ``c`` of :class:`~sim.discrepancy.model.Surrogate`, ``fit_c`` the fit-part samples
-where it counts, decimated to the filter band; ``s_c`` the channel's baseline RMS on the fit part (so channels
-in N·m and rad weigh alike); ``θ(x)`` the current parameters with the entries ``keys`` set to ``x``. Solved
-with scipy's trust-region reflective ``least_squares``; a few starting points (grids over parameters the cost
-is not convex in: cogging period, hysteresis span, delay, Stribeck velocity) are screened first.
+``r_c`` the residual channel ``c`` of :class:`~sim.discrepancy.model.Surrogate` on the analysis grid, ``fit_c`` the
+fit-part samples where it counts; ``s_c`` the channel's baseline RMS on the fit part (so channels in N·m and rad
+weigh alike); ``θ(x)`` the current parameters with the entries ``keys`` set to ``x``; the bounds each effect's
+:meth:`~sim.discrepancy.effects.base.Effect.bounds`, scaled to the rig and the log. Solved with scipy's
+trust-region reflective ``least_squares`` from the best of the effects' starting points.
+
+A parameter that ends at a bound of its range (not at its neutral value, nor a phase) is reported in
+``FitOutcome.at_bound``: the fit wanted a value outside the range the rig makes plausible.
 """
 
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 from scipy.optimize import least_squares
 
-from sim.discrepancy.effects import EFFECTS, MAX_DELAY_S, canonical, effect_of_key
-from sim.discrepancy.model import Surrogate
+from sim.discrepancy.effects import TESTBED, effect_of_key
+from sim.discrepancy.model import NUISANCE_KEYS, Surrogate
 
-INERTIA_RANGE = (0.1, 10.0)  # re-fitted inertia within this factor of the baseline [1]
-GAIN_RANGE = (0.1, 10.0)  # re-fitted effort gain [1]
 KIN_OFFSET_BOUND_RAD = 0.1  # encoder offset between motor and lever angle [rad]
-MAX_NFEV = 60  # function evaluations per least-squares refinement
+MAX_NFEV = 60  # function evaluations per least-squares refinement (x the number of parameters, at least this)
+AT_BOUND = 1e-3  # a value within this fraction of its range of a bound is at that bound
 
 
 @dataclass(frozen=True)
 class FitOutcome:
-    """A fit: the parameter vector after it, the cost, evaluations used."""
+    """A fit: the parameter vector after it, the cost, evaluations used, the bounds used, and the keys that
+    ended at a bound (key -> 'lower' | 'upper')."""
 
     theta: dict[str, float]
     keys: tuple[str, ...]
     cost: float
     evaluations: int
+    bounds: dict[str, tuple[float, float]] = field(default_factory=dict)
+    at_bound: dict[str, str] = field(default_factory=dict)
+    jacobian: np.ndarray | None = field(default=None, repr=False)
 
     def to_dict(self) -> dict:
         return {"parameters": {k: self.theta[k] for k in self.keys}, "cost": self.cost,
                 "evaluations": self.evaluations}
 
 
-def bounds_of(key: str, theta0: dict[str, float], surrogate: Surrogate, fitting: tuple[str, ...]) -> tuple[float, float]:
-    """Valid range of theta entry ``key`` in a fit (physical range; Coulomb <= breakaway for the testbed; the
-    hysteresis span at most a quarter of the load range)."""
-    if key == "inertia":
-        return INERTIA_RANGE[0] * theta0["inertia"], INERTIA_RANGE[1] * theta0["inertia"]
-    if key == "effort_gain":
-        return GAIN_RANGE
+def bounds_of(key: str, model: Surrogate, theta: dict[str, float], fitting: tuple[str, ...],
+              widen: float = 1.0) -> tuple[float, float]:
+    """Range of theta entry ``key`` in a fit: its effect's bounds (``widen`` x as wide away from zero, within the
+    parameter's physical validity, unless the range is firm), with Coulomb <= breakaway on the testbed (its
+    LuGre needs it)."""
     if key == "kin_offset":
         return -KIN_OFFSET_BOUND_RAD, KIN_OFFSET_BOUND_RAD
-    if key == "delay":
-        return 0.0, MAX_DELAY_S
-    p = next(p for p in effect_of_key(key).params if p.key == key)
-    low, high = p.low, p.high
-    if key == "coulomb" and "breakaway" not in fitting and surrogate.testbed:  # LuGre needs F_c <= F_s
-        high = min(high, theta0["breakaway"])
+    effect = effect_of_key(key)
+    low, high = effect.bounds(key, model.scale, theta)
+    if widen != 1.0 and not effect.param(key).firm:
+        low = low / widen if low > 0 else low * widen
+        high = high * widen if high > 0 else high / widen
+        valid = effect.param(key).valid
+        low, high = max(low, valid[0]), min(high, valid[1])
+    if key == "coulomb" and "breakaway" not in fitting and model.kind == TESTBED:
+        high = min(high, theta["breakaway"])
     if key == "breakaway" and "coulomb" not in fitting:
-        low = max(low, theta0["coulomb"])
-    if key == "sensor_hysteresis_span":
-        # Until the torque has moved 2S after a reversal, the loop H/S·(τ - p) rises like a sensor gain; with S at
-        # half the load range or more it never leaves its start (a gain and an offset, not hysteresis). A quarter
-        # of the range lets a full swing show the loop rise and then saturate.
-        high = min(high, max(low, 0.25 * float(np.ptp(surrogate.transmitted(theta0)))))
+        low = max(low, theta["coulomb"])
     return low, high
 
 
-def residual_vector(surrogate: Surrogate, theta: dict[str, float], mask: np.ndarray, scales: dict[str, float],
-                    decimation: int) -> np.ndarray:
-    """Stacked, scaled residuals of every channel on ``mask`` (decimated) [1]."""
+def residual_vector(model: Surrogate, theta: dict[str, float], mask: np.ndarray, scales: dict[str, float]) -> np.ndarray:
+    """Stacked, scaled residuals of every channel on ``mask`` [1]; samples that do not count are zeros (not
+    dropped: the vector keeps its length while the parameters move the kinematic channel's contact set)."""
     parts = []
-    for channel, r in surrogate.residuals(theta).items():
-        sel = r[mask][::decimation]
-        # samples that do not count are zeros, not dropped: the vector keeps its length while the parameters
-        # move the kinematic channel's contact set
+    for channel, r in model.residuals(theta).items():
+        sel = r[mask]
         parts.append(np.where(np.isfinite(sel), sel, 0.0) / scales[channel])
     return np.concatenate(parts)
 
 
-def fit_keys(surrogate: Surrogate, theta0: dict[str, float], keys: tuple[str, ...], scales: dict[str, float],
-             starts: list[dict[str, float]] | None = None) -> FitOutcome:
-    """Least squares of ``keys`` from the best of ``starts`` (each a partial theta) on the fit part."""
-    data = surrogate.data
-    decimation = data.decimation
-    mask = data.fit
+def _at_bound(key: str, value: float, low: float, high: float) -> str | None:
+    if key in NUISANCE_KEYS:
+        return None
+    param = effect_of_key(key).param(key)
+    if param.cyclic:
+        return None
+    tolerance = AT_BOUND * (high - low) if math.isfinite(high - low) else AT_BOUND * max(abs(value), 1e-12)
+    for side, bound in (("lower", low), ("upper", high)):
+        if abs(value - bound) <= tolerance and bound != param.neutral:
+            return side
+    return None
+
+
+def fit_keys(model: Surrogate, theta0: dict[str, float], keys: tuple[str, ...], scales: dict[str, float],
+             starts: list[dict[str, float]] | None = None, *, mask: np.ndarray | None = None,
+             held: tuple[str, ...] = (), widen: float = 1.0) -> FitOutcome:
+    """Least squares of ``keys`` from the best of ``starts`` (each a partial theta) on ``mask`` (default: the fit
+    part). ``held`` keys keep their screened start value; ``widen`` widens the bounds (:func:`bounds_of`)."""
+    mask = model.data.fit if mask is None else mask
     evaluations = 0
 
     def cost_of(theta: dict[str, float]) -> float:
         nonlocal evaluations
         evaluations += 1
-        r = residual_vector(surrogate, theta, mask, scales, decimation)
+        r = residual_vector(model, theta, mask, scales)
         return float(r @ r)
 
     best = dict(theta0)
@@ -100,10 +113,12 @@ def fit_keys(surrogate: Surrogate, theta0: dict[str, float], keys: tuple[str, ..
         c = cost_of(candidate)
         if c < best_cost:
             best, best_cost = candidate, c
+    keys = tuple(k for k in keys if k not in held)
+    bounds = {k: bounds_of(k, model, theta0, keys, widen) for k in keys}
     if not keys:
-        return FitOutcome(best, keys, best_cost, evaluations)
-    lo, hi = zip(*(bounds_of(k, theta0, surrogate, keys) for k in keys))
-    lo, hi = np.array(lo), np.array(hi)
+        return FitOutcome(best, keys, best_cost, evaluations, bounds)
+    lo = np.array([bounds[k][0] for k in keys])
+    hi = np.array([bounds[k][1] for k in keys])
     x0 = np.clip(np.array([best[k] for k in keys]), lo, hi)
     span = hi - lo
     inside = np.where(np.isfinite(span), 1e-9 * span, 1e-12)
@@ -115,89 +130,29 @@ def fit_keys(surrogate: Surrogate, theta0: dict[str, float], keys: tuple[str, ..
         evaluations += 1
         theta = dict(best)
         theta.update(zip(keys, x.tolist(), strict=True))
-        return residual_vector(surrogate, theta, mask, scales, decimation)
+        return residual_vector(model, theta, mask, scales)
 
-    solution = least_squares(fun, x0, bounds=(lo, hi), x_scale=scale, max_nfev=MAX_NFEV, method="trf",
-                             diff_step=1e-4)
+    solution = least_squares(fun, x0, bounds=(lo, hi), x_scale=scale, max_nfev=max(MAX_NFEV, 10 * len(keys)),
+                             method="trf", diff_step=1e-4)
     theta = dict(best)
     theta.update(zip(keys, solution.x.tolist(), strict=True))
-    return FitOutcome(canonical(theta, surrogate.rig.joint), keys, float(2.0 * solution.cost), evaluations)
+    for key in keys:
+        theta = effect_of_key(key).canonical(theta, model.rig.joint) if key not in NUISANCE_KEYS else theta
+    at_bound = {k: side for k, (low, high) in bounds.items() if (side := _at_bound(k, theta[k], low, high))}
+    return FitOutcome(theta, keys, float(2.0 * solution.cost), evaluations, bounds, at_bound, solution.jac)
 
 
-def effect_starts(name: str, theta: dict[str, float], surrogate: Surrogate) -> tuple[list[dict[str, float]], tuple[str, ...]]:
-    """Starting points of an effect's fit and the keys held at the screened value (not refined).
-
-    Linear sub-problems are solved directly (cogging: amplitude and phase for each period of a grid; gravity:
-    ``A·sin(q - q0)`` is linear in ``A·cos q0`` and ``A·sin q0``); grids cover the rest.
-    """
-    data = surrogate.data
-    spec = EFFECTS[name]
-    if name == "cogging":
-        return _cogging_starts(theta, surrogate), ("cogging_period",)
-    if name == "gravity":
-        r = surrogate.residuals(theta)["effort"]
-        q = data.q if data.q is not None else data.position
-        ok = data.fit & np.isfinite(r)
-        if surrogate.rig.joint == "slide":
-            return [{"gravity_amplitude": float(np.mean(-r[ok]))}], ("gravity_angle",)
-        a = np.column_stack([np.sin(q[ok]), -np.cos(q[ok])])  # residual = -(A cos q0 sin q - A sin q0 cos q)
-        coef, *_ = np.linalg.lstsq(a, -r[ok], rcond=None)
-        amp = float(math.hypot(*coef))
-        return [{"gravity_amplitude": amp, "gravity_angle": float(math.atan2(coef[1], coef[0]))}], ()
-    if name == "transport_delay":
-        return [{"delay": d} for d in np.arange(0.0, MAX_DELAY_S + 1e-12, 1e-3)], ()
-    if name == "stribeck_friction":
-        return [{"stribeck_velocity": theta["stribeck_velocity"] * f, "breakaway": theta["breakaway"] * g}
-                for f in (0.3, 1.0, 3.0) for g in (1.0, 1.5, 2.0)], ()
-    if name == "presliding_friction":
-        return [{"presliding_stiffness": theta["presliding_stiffness"] * f} for f in (0.2, 0.5, 2.0, 5.0)], ()
-    if name == "sensor_hysteresis":
-        return [{"sensor_hysteresis_span": s, "sensor_hysteresis": h} for s in (0.25, 0.5, 1.0, 2.0, 4.0)
-                for h in (-0.03, 0.03)], ()
-    if name == "sensor_gain":
-        return [{"sensor_gain": g} for g in (0.97, 1.03)], ()
-    if name == "torque_constant_nonlinearity":
-        return [{"torque_rolloff": c} for c in (-0.1, 0.1)], ()
-    if name == "backlash":
-        return [{"backlash_width": theta["backlash_width"] * f} for f in (0.3, 2.0)], ()
-    starts = []
-    for p in spec.params:  # a small step each way from the current value
-        v = theta[p.key]
-        step = max(abs(v) * 0.3, 0.01 * (p.high - p.low) if math.isfinite(p.high - p.low) else 0.01)
-        starts += [{p.key: min(max(v + s, p.low), p.high)} for s in (-step, step)]
-    return starts, ()
-
-
-def _cogging_starts(theta: dict[str, float], surrogate: Surrogate) -> list[dict[str, float]]:
-    data = surrogate.data
-    r = surrogate.residuals(theta)["effort"]
-    ok = data.fit & np.isfinite(r)
-    span = float(np.ptp(data.position[ok])) if ok.any() else 0.0
-    periods = candidate_periods(surrogate, span)
-    best: tuple[float, dict[str, float]] | None = None
-    for period in periods:
-        phase = 2.0 * math.pi * data.position / period
-        a = np.column_stack([data.filt(np.sin(phase))[ok], data.filt(np.cos(phase))[ok]])
-        coef, *_ = np.linalg.lstsq(a, -r[ok], rcond=None)  # residual + cogging = 0
-        explained = float(np.sum((a @ coef) ** 2))
-        if best is None or explained > best[0]:
-            amp = float(math.hypot(*coef))
-            best = (explained, {"cogging_amplitude": amp, "cogging_period": float(period),
-                                "cogging_phase": float(math.atan2(coef[1], coef[0]))})
-    return [best[1]] if best else []
-
-
-MIN_PERIODS_IN_RANGE = 3  # a cogging period must fit at least 3 times in the position range to be fitted
-MAX_POLES = 60  # testbed: pole counts tried, 1..60
-RIGID_PERIOD_GRID = 300  # rigid joint: log-spaced periods tried
-
-
-def candidate_periods(surrogate: Surrogate, position_span: float) -> np.ndarray:
-    """Cogging periods the log can reveal [rad | m]: 2π/(N·poles) for the testbed, a grid for a rigid joint."""
-    if surrogate.testbed:
-        n = surrogate.const["gear_ratio"]
-        periods = 2.0 * math.pi / (n * np.arange(1, MAX_POLES + 1))
-    else:
-        resolution = max(surrogate.data.position_resolution, 1e-9)
-        periods = np.geomspace(max(20 * resolution, 1e-6), max(position_span, 1e-6), RIGID_PERIOD_GRID)
-    return periods[periods * MIN_PERIODS_IN_RANGE <= position_span]
+def standard_errors(outcome: FitOutcome, dof_fraction: float) -> dict[str, float]:
+    """Standard errors of the fitted keys [their units] from the Jacobian at the solution, the residual variance
+    and the fraction of independent samples per residual ``dof_fraction`` (the filtered residual's samples are
+    correlated): ``sqrt(diag((JᵀJ)⁻¹)·s²/dof_fraction)``."""
+    jac = outcome.jacobian
+    if jac is None or not outcome.keys:
+        return {}
+    m, p = jac.shape
+    s2 = outcome.cost / max(m - p, 1)
+    try:
+        cov = np.linalg.pinv(jac.T @ jac) * s2 / max(dof_fraction, 1e-9)
+    except np.linalg.LinAlgError:
+        return {k: math.inf for k in outcome.keys}
+    return {k: float(math.sqrt(max(cov[i, i], 0.0))) for i, k in enumerate(outcome.keys)}

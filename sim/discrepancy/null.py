@@ -57,8 +57,7 @@ def model_log(log: RunLog, rig: Rig, data: Prepared, seed: int = 0) -> RunLog:
     Raises
     ------
     ModelLogUnavailable
-        If the rig cannot be simulated (a rigid joint with breakaway above its Coulomb level: MuJoCo's plain
-        joints have no Stribeck curve) or the simulation diverges.
+        If the simulation diverges.
     """
     u = np.asarray(log["tau_cmd"], dtype=float)
     initial = measured_state(log, rig, data, at_rest=True)(0)
@@ -67,9 +66,6 @@ def model_log(log: RunLog, rig: Rig, data: Prepared, seed: int = 0) -> RunLog:
         if rig.model == "testbed":
             run = run_testbed(rig, command, len(u), initial=initial)
         else:
-            if rig.rigid["breakaway"] > rig.rigid["coulomb"]:
-                raise ModelLogUnavailable("a rigid joint with breakaway above its Coulomb level is not simulated "
-                                          "(MuJoCo's plain joints have no Stribeck curve)")
             run = run_rigid(rig, command, len(u), initial=initial)
     except SimulationDiverged as error:
         raise ModelLogUnavailable(f"the model's open-loop run of the log's command diverged: {error}") from error

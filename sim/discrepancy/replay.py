@@ -32,7 +32,7 @@ from typing import Any
 
 import numpy as np
 
-from sim.discrepancy.effects import MAX_DELAY_S
+from sim.discrepancy.effects.transport_delay import MAX_DELAY_S
 from sim.discrepancy.model import bristle_state, stribeck_level
 from sim.discrepancy.rig import Rig
 from sim.discrepancy.signals import AnalysisConfig, Prepared
@@ -40,23 +40,29 @@ from sim.discrepancy.simulate import InitialState, run_rigid, run_testbed, testb
 from sim.runlog import RunLog
 
 
+def held_runs(data: Prepared) -> list[tuple[int, int]]:
+    """Full-rate index ranges [start, stop) of the contiguous runs of the held-out part."""
+    held = np.concatenate([[False], data.held, [False]])
+    starts, stops = np.flatnonzero(held[1:] & ~held[:-1]), np.flatnonzero(held[:-1] & ~held[1:])
+    return [(int(data.grid[a]), int(data.grid[b - 1]) + 1) for a, b in zip(starts, stops, strict=True)]
+
+
 def _windows(data: Prepared, config: AnalysisConfig) -> list[tuple[int, int]]:
-    index = np.flatnonzero(data.held)
-    if not len(index):
-        return []
     length = max(2, int(round(config.replay_window_s / data.dt)))
-    return [(int(s), int(min(s + length, index[-1] + 1))) for s in range(int(index[0]), int(index[-1]) + 1, length)
-            if min(s + length, index[-1] + 1) - s >= 2]
+    out = []
+    for first, end in held_runs(data):
+        out += [(s, min(s + length, end)) for s in range(max(first, 1), end, length) if min(s + length, end) - s >= 2]
+    return out
 
 
 def _motor_angle(log: RunLog, data: Prepared) -> np.ndarray:
-    """The filtered motor-side angle [rad]: the motor encoder, else the only encoder the log has."""
-    return data.filt(np.asarray(log["q_motor"] if "q_motor" in log.columns else log["q"], dtype=float))
+    """The filtered motor-side angle at full rate [rad]: the motor encoder, else the only encoder the log has."""
+    return data.filt_full(np.asarray(log["q_motor"] if "q_motor" in log.columns else log["q"], dtype=float))
 
 
 def _lever_angle(log: RunLog, data: Prepared) -> np.ndarray:
-    """The lever angle [rad]: the filtered lever encoder, else the motor-side angle (rigid gear assumed)."""
-    return data.q if data.q is not None else _motor_angle(log, data)
+    """The lever angle at full rate [rad]: the filtered lever encoder, else the motor-side angle (rigid gear)."""
+    return data.filt_full(np.asarray(log["q"], dtype=float)) if "q" in log.columns else _motor_angle(log, data)
 
 
 def measured_state(log: RunLog, rig: Rig, data: Prepared, *, at_rest: bool = False,
@@ -66,9 +72,9 @@ def measured_state(log: RunLog, rig: Rig, data: Prepared, *, at_rest: bool = Fal
     the zero-phase filter's velocity is not reliable); ``contact_torque`` [N·m]: above it the hub is loaded.
     The driver's state is set by the run (``previous_commands`` of :func:`sim.discrepancy.simulate.run_testbed`).
     """
-    velocity = data.velocity
     if rig.model != "testbed":
         q = np.asarray(log["q"], dtype=float)
+        velocity = np.gradient(data.filt_full(q), data.dt)
         if at_rest:
             velocity = np.zeros(len(q))
 
@@ -85,8 +91,13 @@ def measured_state(log: RunLog, rig: Rig, data: Prepared, *, at_rest: bool = Fal
     half_gap = 0.5 * rig.params.backlash.width_rad
     bristle = measured_bristle_rad(rig, data) * rig.params.motor.gear_ratio  # motor side: MuJoCo's dcmotor state
     q_motor, q_lever = _motor_angle(log, data), _lever_angle(log, data)
-    tau = (data.tau_loadcell if data.tau_loadcell is not None else
-           data.tau_sensor if data.tau_sensor is not None else np.zeros(len(q_motor)))
+    velocity = np.gradient(q_motor, data.dt)
+    if "force_loadcell" in log.columns:
+        tau = data.filt_full(np.asarray(log["force_loadcell"], dtype=float) * rig.params.lever.length_m)
+    elif "tau_sensor" in log.columns:
+        tau = data.filt_full(np.asarray(log["tau_sensor"], dtype=float))
+    else:
+        tau = np.zeros(len(q_motor))
     flex_rate = -np.gradient(tau, data.dt) / k_t  # rates from the filtered load (the raw reading is noisy)
     locked = rig.fixture == "locked" and "force_loadcell" in log.columns
     if locked:
@@ -197,7 +208,7 @@ def _measured(log: RunLog, rig: Rig, data: Prepared, windows: list[tuple[int, in
     for start, stop in windows:
         if rig.model == "testbed" and rig.fixture == "locked":
             parts.append(np.asarray(log["force_loadcell"][start:stop]) * rig.params.lever.length_m
-                         if "force_loadcell" in log.columns else data.tau_sensor[start:stop])
+                         if "force_loadcell" in log.columns else np.asarray(log["tau_sensor"][start:stop]))
         else:
             q = np.asarray(log["q"] if "q" in log.columns else log["q_motor"])
             parts.append(q[start:stop] - q[start])
@@ -212,8 +223,9 @@ def replay_held_out(log: RunLog, baseline: Rig, extended: Rig, data: Prepared, c
     measured = _measured(log, baseline, data, windows)
     sim_base, signal, unit = _replay(log, baseline, data, windows, config.contact_torque)
     sim_ext, _, _ = _replay(log, extended, data, windows, config.contact_torque)
-    time = np.concatenate([data.t[a:b] for a, b in windows])
+    time = np.concatenate([data.t_full[a:b] for a, b in windows])
     rmse = lambda x: float(math.sqrt(np.mean((x - measured) ** 2)))  # noqa: E731
     return {"signal": signal, "unit": unit, "windows": len(windows), "window_s": config.replay_window_s,
+            "samples": len(time),
             "rmse_baseline": rmse(sim_base), "rmse_extended": rmse(sim_ext), "time": time, "measured": measured,
             "simulated_baseline": sim_base, "simulated_extended": sim_ext}

@@ -11,40 +11,85 @@ from sim.discrepancy.analysis import DiscrepancyResult
 from sim.figures import save_figure
 
 SIGNATURES_SHOWN = 6  # strongest signatures listed in the text report
+Y_PERCENTILES = (0.5, 99.5)  # residual figures: the y-range holds these percentiles of the samples that count
+Y_MARGIN = 0.15  # ... plus this share of the range each way
+MAX_LAG_S = 0.5  # autocorrelation figure: lags up to this [s]
+
+
+def _value(entry: dict, joint_unit: str = "") -> str:
+    text = f"{entry['value']:.5g} {entry.get('unit', joint_unit)}".rstrip()
+    if "baseline" in entry:
+        text += f" (rig {entry['baseline']:.5g})"
+    return text
 
 
 def format_result(result: DiscrepancyResult) -> str:
-    """A plain-text report: split, baseline RMSE, findings in order, what the log cannot reveal, verdict."""
+    """A plain-text report: split, baseline, findings in order, refused candidates, the unexplained remainder,
+    each log's relative effort error, what the logs cannot reveal, the verdict."""
     b = result.baseline
-    lines = [f"Discrepancy analysis: fit part {b['split']['fit']}, held out {b['split']['held_out']} "
-             f"({b['split']['fit_samples']} / {b['split']['held_out_samples']} samples, {b['split']['guard_s']} s "
-             f"filter guards)"]
+    split = b["split"]
+    if "logs" in split:
+        parts = "; ".join(f"{entry['log']} ({entry['role']}, {entry['fitted']} fitted)" for entry in split["logs"])
+        lines = [f"Discrepancy analysis of {len(split['logs'])} logs: {parts}"]
+    else:
+        lines = [f"Discrepancy analysis: fit part {split['fit']}, held out {split['held_out']}"]
+    lines[0] += (f"; {split['fit_samples']} / {split['held_out_samples']} analysis-grid samples fit / held out, "
+                 f"{split['guard_s']} s filter guards")
+    for entry in b["time_convention"]:
+        lines.append(f"  time convention of {entry['log']}: {entry['time_convention']} ({entry['from']})")
     for key, entry in b["free_parameters"].items():
-        lines.append(f"  re-fitted baseline {key}: {entry['value']:.6g} (rig {entry['rig']:.6g})")
+        line = f"  re-fitted baseline {key}: {entry['value']:.6g} {entry['unit']} (rig {entry['rig']:.6g})"
+        if "at_bound" in entry:
+            low, high = entry["bounds"]
+            line += (f"; at the {entry['at_bound']} bound of its range [{low:.4g}, {high:.4g}] {entry['unit']}: "
+                     f"the rig's value is far off, or another effect pulls it there")
+        lines.append(line)
     lines.append("Baseline held-out RMSE: " + ", ".join(
         f"{c} {v:.4g} {result.units[c]}" if math.isfinite(v) else f"{c} n/a (no sample counts)"
         for c, v in b["rmse_heldout"].items()))
     lines.append("Strongest signatures in the baseline residual (held-out correlation; a shape the residual "
-                 "resembles is a candidate, a finding needs the significance rule: held-out gain, ΔBIC, "
-                 "consistency):")
+                 "resembles is a candidate, a finding needs the significance rule):")
     for s in b["signatures"][:SIGNATURES_SHOWN]:
-        lines.append(f"  {s['channel']:>9s}  {s['signature']:<36s} {s['correlation']:+.3f}")
+        lines.append(f"  {s['channel']:>9s}  {s['signature']:<40s} {s['correlation']:+.3f}  ({s['effect']})")
     if result.findings:
-        lines.append("Findings, in the order accepted:")
+        lines.append("Findings, in the order accepted (values of the final joint fit):")
         for i, f in enumerate(result.findings, 1):
-            params = ", ".join(
-                f"{k} = {v['value']:.5g} {v['unit']}" + (f" (baseline {v['baseline']:.5g})" if "baseline" in v else "")
-                for k, v in f.parameters.items())
-            ch = f.evidence.get("channel")
-            lines.append(f"  {i}. {f.effect}: {params}")
-            lines.append(f"     held-out RMSE {f.rmse_heldout_before:.4g} -> {f.rmse_heldout_after:.4g} "
-                         f"({100 * f.gain:.1f} % better); evidence: '{f.evidence['signature']}' in the {ch} residual "
-                         f"(correlation {f.evidence['correlation_before'] or 0:+.3f}), ΔBIC {f.evidence['delta_bic']:.1f}, "
-                         f"consistency t {f.evidence['consistency_t']:.2f}")
-    lines.append("The log cannot reveal:")
+            params = ", ".join(f"{k} = {_value(v)}" for k, v in f.parameters.items())
+            what = "re-fit of the rig's value" if f.kind == "re-fit" else "new to the rig"
+            ev = f.evidence
+            correlation = ev["correlation_before"]
+            lines.append(f"  {i}. {f.effect} ({what}): {params}")
+            lines.append(f"     held-out {ev['channel']} RMSE {f.rmse_heldout_before:.4g} -> {f.rmse_heldout_after:.4g} "
+                         f"({100 * f.gain:.1f} % better); ΔBIC {ev['delta_bic']:.1f}, events z {ev['event_z']:.2f}"
+                         + (f"; '{ev['signature']}' correlates {correlation:+.3f} with the residual before"
+                            if correlation is not None and math.isfinite(correlation) else ""))
+    if result.rejected:
+        lines.append("Refused candidates with a held-out gain of 10 % or more (and the rule that refused them):")
+        for r in result.rejected:
+            params = ", ".join(f"{k} = {v['value']:.4g} {v['unit']}".rstrip() for k, v in r["parameters"].items())
+            note = f"; {r['note']}" if r["note"] else ""
+            bound = f"; at bound: {', '.join(f'{k} ({side})' for k, side in r['at_bound'].items())}" if r["at_bound"] else ""
+            lines.append(f"  {r['effect']}: {100 * r['gain']:.1f} % gain, refused by '{r['rejected_by']}' "
+                         f"({params}{bound}{note})")
+    s = result.structure
+    if s.unexplained:
+        lines.append("Unexplained: the residual holds a discrepancy the library does not name:")
+        lines += [f"  {line}" for line in s.description + s.refused]
+    lines.append(f"Residual left (held out): " + ", ".join(f"{c} {v:.4g} {result.units[c]}"
+                                                          for c, v in s.rmse.items() if math.isfinite(v))
+                 + f"; a generic model of it gains {100 * s.generic_gain:.1f} %; Ljung-Box p "
+                 f"{s.whiteness.get('p_value', float('nan')):.3g}")
+    lines.append("Relative effort prediction error ‖F - F̂‖/‖F‖ (F the command in the analysis band):")
+    for entry in result.logs:
+        e = entry["relative_effort_error"]
+        lines.append(f"  {entry['log']} ({entry['role']}, {entry['scored']}): baseline {e['baseline']:.4f}, "
+                     f"final {e['final']:.4f}")
+    lines.append("The logs cannot reveal:")
     for name, why in b["not_identifiable"].items():
         lines.append(f"  {name}: {why}")
-    if result.replay:
+    if result.replay.get("skipped"):
+        lines.append(f"MuJoCo replay skipped: {result.replay['skipped']}")
+    elif result.replay:
         r = result.replay
         lines.append(f"MuJoCo replay of the held-out part ({r['windows']} windows of {r['window_s']} s, re-initialised "
                      f"from the measured state), {r['signal']}: RMSE baseline {r['rmse_baseline']:.4g} {r['unit']}, "
@@ -53,37 +98,60 @@ def format_result(result: DiscrepancyResult) -> str:
     return "\n".join(lines)
 
 
+def robust_limits(*series: np.ndarray) -> tuple[float, float] | None:
+    """A y-range holding ``Y_PERCENTILES`` of the finite samples of ``series``, with a margin (None: none)."""
+    values = np.concatenate([s[np.isfinite(s)] for s in series])
+    if not len(values):
+        return None
+    low, high = np.percentile(values, Y_PERCENTILES)
+    span = high - low or max(abs(high), 1e-12)
+    return float(low - Y_MARGIN * span), float(high + Y_MARGIN * span)
+
+
 def plot_result(result: DiscrepancyResult, directory: Path) -> list[Path]:
-    """Residuals before/after, their autocorrelation, the replay; PNG files in ``directory``."""
+    """Residuals before/after, their autocorrelation, the signatures, the replay; PNG files in ``directory``."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
     paths = []
-    channels = list(result.residuals_baseline)
-    fig, axes = plt.subplots(len(channels), 1, figsize=(10, 2.6 * len(channels)), squeeze=False)
-    for ax, c in zip(axes[:, 0], channels, strict=True):
-        ax.plot(result.time, result.residuals_baseline[c], lw=0.6, label="baseline")
-        ax.plot(result.time, result.residuals_final[c], lw=0.6, label="extended")
-        ax.axvspan(result.time[result.held][0], result.time[-1], color="0.9", zorder=0, label="held out")
+    counted = result.fit | result.held
+    channels = [c for c, r in result.residuals_baseline.items() if np.isfinite(r[counted]).any()]
+    fig, axes = plt.subplots(max(len(channels), 1), 1, figsize=(10, 2.6 * max(len(channels), 1)), squeeze=False)
+    for ax, c in zip(axes[:, 0], channels, strict=False):
+        before = np.where(counted, result.residuals_baseline[c], np.nan)
+        after = np.where(counted, result.residuals_final[c], np.nan)
+        ax.plot(result.time, before, lw=0.6, label="baseline")
+        ax.plot(result.time, after, lw=0.6, label="final model")
+        if result.held.any():
+            ax.axvspan(result.time[result.held][0], result.time[result.held][-1], color="0.9", zorder=0,
+                       label="held out")
+        limits = robust_limits(before, after)
+        if limits:
+            ax.set_ylim(*limits)
         ax.set_ylabel(f"{c} [{result.units[c]}]")
         ax.legend(loc="upper right", fontsize=7)
     axes[-1, 0].set_xlabel("time [s]")
-    fig.suptitle("Residuals (measured - model)")
+    fig.suptitle("Residuals (measured - model) where they count (filter guards left out)")
     paths.append(save_figure(fig, directory, "discrepancy_residuals.png"))
 
     fig, ax = plt.subplots(figsize=(6, 3.5))
+    step = float(result.time[1] - result.time[0]) if len(result.time) > 1 else 1.0
     for c in channels:
         r = result.residuals_baseline[c][result.held]
-        r = r[np.isfinite(r)] - np.nanmean(r)
-        lags = np.arange(0, min(500, len(r) // 2))
-        ac = [float(r[: len(r) - k] @ r[k:]) / float(r @ r) for k in lags]
-        ax.plot(lags * (result.time[1] - result.time[0]), ac, label=c)
+        r = r[np.isfinite(r)]
+        if len(r) < 4:
+            continue
+        r = r - r.mean()
+        lags = np.arange(0, min(int(MAX_LAG_S / step), len(r) // 2))
+        ac = [float(r[: len(r) - k] @ r[k:]) / float(r @ r) if r @ r > 0 else 0.0 for k in lags]
+        ax.plot(lags * step, ac, label=c)
     ax.set_xlabel("lag [s]")
     ax.set_ylabel("autocorrelation [1]")
     ax.set_title("Baseline residual autocorrelation (held out)")
-    ax.legend()
+    if channels:
+        ax.legend()
     paths.append(save_figure(fig, directory, "discrepancy_autocorrelation.png"))
 
     sigs = result.baseline["signatures"][:10]
@@ -92,8 +160,8 @@ def plot_result(result: DiscrepancyResult, directory: Path) -> list[Path]:
     ax.set_xlabel("correlation with the baseline residual [1]")
     paths.append(save_figure(fig, directory, "discrepancy_signatures.png"))
 
-    if result.replay:
-        r = result.replay
+    r = result.replay
+    if r and not r.get("skipped"):
         fig, ax = plt.subplots(figsize=(10, 3.5))
         ax.plot(r["time"], r["measured"], "k.", ms=1, label="measured")
         ax.plot(r["time"], r["simulated_baseline"], ".", ms=1, label=f"baseline (RMSE {r['rmse_baseline']:.3g})")

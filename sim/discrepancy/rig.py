@@ -47,47 +47,41 @@ from pathlib import Path
 from typing import Any
 
 from models.gim8108_testbed.derived import FIXTURES, derive
-from sim.discrepancy.effects import EFFECTS
+from sim.discrepancy.effects import EFFECTS, rig_kind
+from sim.discrepancy.effects.transport_delay import MAX_DELAY_S
 from sim.params import ParameterError, TestbedParams, from_dict
-from sim.runlog import RunLog
+from sim.runlog import TIME_CONVENTIONS, RunLog
 
 MODELS = ("testbed", "rigid-joint")
 JOINTS = ("hinge", "slide")
 
-# Testbed parameters the analysis may re-fit (rig `free` list) -> theta key of the surrogate.
-TESTBED_FREE: dict[str, str] = {
-    "friction.coulomb_torque_nm": "coulomb",
-    "friction.breakaway_torque_nm": "breakaway",
-    "friction.stribeck_velocity_rad_s": "stribeck_velocity",
-    "friction.viscous_nms_per_rad": "viscous",
-    "friction.presliding_stiffness_nm_per_rad": "presliding_stiffness",
-    "friction.load_friction_coefficient": "load_coefficient",
-    "motor.command_delay_s": "delay",
-    "motor.rotor_inertia_kgm2": "inertia",
-    "backlash.width_rad": "backlash_width",
+# Rigid-joint fields: name -> (theta key, unit for hinge, unit for slide, low, high)
+_RIGID_FIELDS: dict[str, tuple[str, str, str, float, float]] = {
+    "inertia_kgm2": ("inertia", "kg·m²", "", 0.0, 1e6),
+    "mass_kg": ("inertia", "", "kg", 0.0, 1e6),
+    "effort_gain": ("effort_gain", "1", "1", 0.0, 1e6),
+    "delay_s": ("delay", "s", "s", 0.0, MAX_DELAY_S),
+    "peak_effort": ("peak_effort", "N·m", "N", 0.0, 1e6),
+    "gravity_amplitude": ("gravity_amplitude", "N·m", "N", -1e4, 1e4),
+    "gravity_angle_rad": ("gravity_angle", "rad", "", -math.pi, math.pi),
 }
-
-# Rigid-joint fields: name -> (theta key, unit for hinge, unit for slide, low, high, required, default)
-_RIGID_FIELDS: dict[str, tuple[str, str, str, float, float, bool, float | None]] = {
-    "inertia_kgm2": ("inertia", "kg·m²", "", 0.0, 1e6, False, None),
-    "mass_kg": ("inertia", "", "kg", 0.0, 1e6, False, None),
-    "effort_gain": ("effort_gain", "1", "1", 0.0, 1e6, True, None),
-    "delay_s": ("delay", "s", "s", 0.0, 0.02, False, 0.0),
-    "peak_effort": ("peak_effort", "N·m", "N", 0.0, 1e6, False, None),
-    "gravity_amplitude": ("gravity_amplitude", "N·m", "N", -1e4, 1e4, False, 0.0),
-    "gravity_angle_rad": ("gravity_angle", "rad", "", -math.pi, math.pi, False, 0.0),
-}
+_RIGID_DEFAULTS = {"delay": 0.0, "gravity_amplitude": 0.0, "gravity_angle": 0.0}
 _RIGID_FRICTION: dict[str, tuple[str, str, str, float, float]] = {
     "coulomb": ("coulomb", "N·m", "N", 0.0, 1e4),
     "viscous": ("viscous", "N·m·s/rad", "N·s/m", 0.0, 1e6),
     "breakaway": ("breakaway", "N·m", "N", 0.0, 1e4),
     "stribeck_velocity": ("stribeck_velocity", "rad/s", "m/s", 0.0, 1e3),
 }
-RIGID_FREE: dict[str, str] = {
-    "inertia_kgm2": "inertia", "mass_kg": "inertia", "effort_gain": "effort_gain", "delay_s": "delay",
-    "gravity_amplitude": "gravity_amplitude", "gravity_angle_rad": "gravity_angle",
-    **{f"friction.{name}": spec[0] for name, spec in _RIGID_FRICTION.items()},
-}
+
+
+def _free_names(kind: str) -> dict[str, str]:
+    """Rig-file field -> theta key of every parameter a rig of ``kind`` states and the analysis may re-fit."""
+    return {p.fields[kind]: p.key for effect in EFFECTS.values() for p in effect.params if kind in p.fields}
+
+
+# Parameters the analysis may re-fit (rig `free` list) -> theta key of the surrogate, by kind of rig.
+TESTBED_FREE: dict[str, str] = _free_names("testbed")
+RIGID_FREE: dict[str, str] = {**_free_names("hinge"), **_free_names("slide")}
 
 
 class RigError(ValueError):
@@ -128,6 +122,8 @@ class Rig:
         The testbed's parameter overrides as read ({group: {field: value}}), kept for saving.
     source : str
         Where the rig came from (file name), for messages.
+    time_convention : {'hold_end', 'command'} or None
+        How the rig's logs stamp their rows (``docs/run_log_format.md``); None: not stated.
     """
 
     model: str
@@ -139,6 +135,7 @@ class Rig:
     effects: tuple[AddedEffect, ...] = ()
     overrides: dict[str, dict[str, Any]] = field(default_factory=dict)
     source: str = "<rig>"
+    time_convention: str | None = None
 
     @property
     def free_keys(self) -> tuple[str, ...]:
@@ -160,7 +157,8 @@ class Rig:
 
     def to_dict(self) -> dict[str, Any]:
         out: dict[str, Any] = {"model": self.model, "joint": self.joint, "free": list(self.free),
-                               "effects": [e.to_dict() for e in self.effects]}
+                               "effects": [e.to_dict() for e in self.effects],
+                               "time_convention": self.time_convention}
         if self.model == "testbed":
             out.update(fixture=self.fixture, overrides=self.overrides)
         else:
@@ -195,6 +193,9 @@ def rig_from_dict(data: dict[str, Any], source: str = "<rig>") -> Rig:
         raise RigError(f"model = {model!r}: valid values are {', '.join(map(repr, MODELS))}")
     effects = _effects(data.pop("effects", []))
     free = data.pop("free", [])
+    convention = data.pop("time_convention", None)
+    if convention is not None and convention not in TIME_CONVENTIONS:
+        raise RigError(f"time_convention = {convention!r}: valid values are {', '.join(map(repr, TIME_CONVENTIONS))}")
     if not isinstance(free, list) or not all(isinstance(f, str) for f in free):
         raise RigError(f"free = {free!r}: expected a list of parameter names")
     if model == "testbed":
@@ -209,9 +210,10 @@ def rig_from_dict(data: dict[str, Any], source: str = "<rig>") -> Rig:
             hint = f" (did you mean {close[0]!r}?)" if close else ""
             raise RigError(f"free: {name!r} cannot be re-fitted{hint}; valid names: {', '.join(valid)}")
     for effect in effects:
-        if EFFECTS[effect.name].rigs == "testbed" and model != "testbed":
-            raise RigError(f"effects: {effect.name!r} applies to the testbed only, not a rigid joint")
-    return dataclasses.replace(rig, free=tuple(free), effects=tuple(effects))
+        if not EFFECTS[effect.name].applies(rig):
+            raise RigError(f"effects: {effect.name!r} does not apply to a {rig_kind(rig)} rig (it applies to: "
+                           f"{', '.join(sorted(EFFECTS[effect.name].rigs))})")
+    return dataclasses.replace(rig, free=tuple(free), effects=tuple(effects), time_convention=convention)
 
 
 def _effects(tables: Any) -> list[AddedEffect]:
@@ -235,7 +237,7 @@ def _effects(tables: Any) -> list[AddedEffect]:
             if key not in specs:
                 raise RigError(f"effects[{i}] ({name}): unknown parameter {key!r}; valid: {', '.join(specs)}")
             p = specs[key]
-            values[key] = _number(f"effects[{i}].{key}", value, p.low, p.high, p.unit_hinge)
+            values[key] = _number(f"effects[{i}].{key}", value, *p.valid, p.unit_hinge)
         missing = [k for k in specs if k not in values]
         if missing:
             raise RigError(f"effects[{i}] ({name}): missing parameter(s) {', '.join(missing)}")
@@ -272,8 +274,13 @@ def _testbed(data: dict[str, Any], source: str) -> Rig:
                                               n=1)
             hint = f" (did you mean {close[0]!r}?)" if close else ""
             raise RigError(f"unknown key {key!r} for model 'testbed'{hint}; valid keys: model, fixture, "
-                           f"lever_length_m, free, effects, and the parameter groups {', '.join(sorted(groups))}")
+                           f"lever_length_m, free, effects, time_convention, and the parameter groups "
+                           f"{', '.join(sorted(groups))}")
     if lever is not None:
+        stated = overrides.get("lever", {}).get("length_m")
+        if stated is not None and stated != lever:
+            raise RigError(f"lever_length_m = {lever!r} and [lever] length_m = {stated!r} disagree; state the lever "
+                           f"length once")
         overrides.setdefault("lever", {})["length_m"] = lever
     try:
         params = from_dict(overrides)
@@ -304,18 +311,16 @@ def _rigid(data: dict[str, Any], source: str) -> Rig:
             close = difflib.get_close_matches(key, valid, n=1)
             hint = f" (did you mean {close[0]!r}?)" if close else ""
             raise RigError(f"unknown key {key!r} for a rigid {joint} joint{hint}; valid keys: model, joint, "
-                           f"free, effects, friction, {', '.join(valid)}")
-        theta_key, unit_h, unit_s, low, high, _, _ = _RIGID_FIELDS[key]
+                           f"free, effects, friction, time_convention, {', '.join(valid)}")
+        theta_key, unit_h, unit_s, low, high = _RIGID_FIELDS[key]
         values[theta_key] = _number(key, value, low, high, unit_s if joint == "slide" else unit_h)
     inertia_name = "mass_kg" if joint == "slide" else "inertia_kgm2"
     if values.get("inertia", 0.0) <= 0.0:
         raise RigError(f"{inertia_name} is required for a rigid {joint} joint: valid range (0, 1e6]")
     if values.get("effort_gain", 0.0) <= 0.0:
         raise RigError("effort_gain is required: delivered effort per unit of tau_cmd, valid range (0, 1e6]")
-    for key, (_, _, _, _, _, _, default) in _RIGID_FIELDS.items():
-        theta_key = _RIGID_FIELDS[key][0]
-        if default is not None and theta_key not in values and _rigid_name_applies(key, joint):
-            values[theta_key] = default
+    for theta_key, default in _RIGID_DEFAULTS.items():
+        values.setdefault(theta_key, default)
     for key, value in friction.items():
         if key not in _RIGID_FRICTION:
             raise RigError(f"unknown key friction.{key!r}; valid keys: {', '.join(_RIGID_FRICTION)}")
@@ -330,8 +335,6 @@ def _rigid(data: dict[str, Any], source: str) -> Rig:
     if values["breakaway"] > values["coulomb"] and values.get("stribeck_velocity", 0.0) <= 0.0:
         raise RigError("friction.stribeck_velocity is required when breakaway > coulomb: valid range (0, 1e3]")
     values.setdefault("stribeck_velocity", 1.0)  # irrelevant while breakaway == coulomb
-    if joint == "slide":
-        values.setdefault("gravity_angle", 0.0)
     return Rig("rigid-joint", joint, rigid=values, source=source)
 
 
@@ -409,6 +412,8 @@ def rig_to_toml(rig: Rig, header: str = "") -> str:
     """TOML text of ``rig`` that :func:`load_rig` reads back to the same rig (units in comments)."""
     lines = [f"# {line}" for line in header.splitlines()]
     lines.append(f"model = {_toml_value(rig.model)}")
+    if rig.time_convention is not None:
+        lines.append(f"time_convention = {_toml_value(rig.time_convention)}")
     if rig.model == "testbed":
         lines.append(f"fixture = {_toml_value(rig.fixture)}")
     else:
@@ -444,6 +449,8 @@ def save_rig(rig: Rig, path: str | Path, *, header: str = "", overwrite: bool = 
     path = Path(path)
     text = rig_to_toml(rig, header)
     rig_from_dict(tomllib.loads(text))  # what we write must load back
+    if not path.parent.is_dir():
+        raise FileNotFoundError(f"cannot write {path}: directory {path.parent} does not exist")
     with path.open("w" if overwrite else "x", encoding="utf-8") as fh:
         fh.write(text)
     return path

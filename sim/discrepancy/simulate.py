@@ -1,24 +1,24 @@
 """MuJoCo runs of a rig with its effects: the testbed plant, or a rigid joint built here.
 
-Effects reach MuJoCo as natively as MuJoCo allows:
+Each effect says how MuJoCo carries it (:meth:`~sim.discrepancy.effects.base.Effect.realise`); effects made of
+the rig's own parameters (friction levels, Stribeck, viscous, presliding, load-dependent friction, backlash,
+dead time, inertia, a rigid joint's gain and gravity) are carried by the rig itself, so the plant is built with
+them. The others arrive as:
 
-- friction levels, Stribeck, viscous, presliding, load-dependent friction, backlash, command delay: the
-  testbed's own parameters (``sim.params``), so the plant is rebuilt with them;
-- cogging: the dcmotor's native ``cogging`` (biasprm[0:3] = amplitude, poles, phase on the motor shaft angle),
-  written into the compiled model: amplitude/N at the output, period 2π/(N·poles) of the output angle;
-- torque-constant roll-off: the command is mapped before it reaches the plant (a memoryless map of the command
-  is what a saturating torque constant does to a torque-commanded drive);
-- asymmetric friction: a constant torque -Δ/2 on the motor joint (levels F_c ± Δ/2 by direction are exactly a
-  constant torque opposing positive motion; MuJoCo's LuGre is symmetric), applied beside the command, not
-  through it, so that the testbed motor's current-to-torque map (``sim.motor_torque``) does not scale it;
-- gravity: a torque on the lever (``external`` actuator) from the lever angle of the previous tick (one control
-  tick late: gravity changes slowly against 1 ms);
-- sensor effects act on the sensor reading, not the mechanics (:func:`sensor_reading`).
+- a map of the command before the drive (roll-off; the testbed's effort gain);
+- a load on the joint from its state, applied as a generalised force at every physics step (rigid joint) or
+  control tick (the testbed's motor joint: asymmetric friction, drag, springs, disturbances);
+- a load on the testbed's lever from its angle of the previous tick (gravity; one control tick late: it
+  changes slowly against 1 ms);
+- MuJoCo's dcmotor cogging (the testbed);
+- a second body behind a spring-damper on the joint's axis (a rigid joint's drivetrain compliance);
+- a term of the torque sensor's reading (:func:`sensor_reading`).
 
-A rigid joint is a one-body MJCF: ``frictionloss`` (Coulomb with stick), ``damping`` (viscous), a ``motor``
-actuator with the effort gain and the command ``delay`` (history linearly interpolated); gravity and cogging through a second actuator
-(one tick late, as above). MuJoCo has no Stribeck curve on a plain joint, so a rigid joint with
-breakaway > coulomb is not simulated here (the analysis still models it).
+A rigid joint is a one-body MJCF: ``frictionloss`` at the static level (stick), ``damping`` (viscous), a
+``motor`` actuator with the effort gain and the command ``delay`` (history linearly interpolated), and an
+``external`` actuator for the loads. A Stribeck drop (breakaway above Coulomb) is the sliding part
+``(F_s - g(v))·sign(v)`` given back at every physics step, so that a sliding joint feels
+``g(v) = F_c + (F_s - F_c)·exp(-(v/v_s)²)`` while a stuck one holds up to F_s.
 """
 
 from __future__ import annotations
@@ -30,9 +30,8 @@ from dataclasses import dataclass
 import mujoco
 import numpy as np
 
-from sim.discrepancy.effects import rolled_off
+from sim.discrepancy.effects import EFFECTS, Realisation
 from sim.discrepancy.rig import Rig
-from sim.motor_torque import CurrentToTorqueMap
 from sim.plant import SIGNAL_UNITS, Plant, prime_ctrl_history
 
 RIGID_SUBSTEPS = 5  # rigid joint: physics steps per control tick (no stiff mode; the dry-friction row's time
@@ -42,6 +41,7 @@ CONTROL_PERIOD_S = 1e-3  # rigid joint: the 1 kHz control rate of the project's 
 
 # command(k, state) -> effort command [N·m | N]; state holds the signals of the previous tick (SI)
 CommandFn = Callable[[int, dict[str, float]], float]
+InitialState = Callable[[mujoco.MjModel, mujoco.MjData], None]  # sets qpos/qvel/act after a reset
 
 
 @dataclass(frozen=True)
@@ -52,54 +52,44 @@ class SimulatedRun:
     units: dict[str, str]
 
 
-def _effect(rig: Rig, name: str) -> dict[str, float] | None:
-    for effect in rig.effects:
-        if effect.name == name:
-            return effect.parameters
-    return None
+def realisations(rig: Rig) -> list[Realisation]:
+    """How MuJoCo carries each of the rig's added effects, in the library's order."""
+    added = {e.name: e.parameters for e in rig.effects}
+    return [effect.realise(added[name], rig) for name, effect in EFFECTS.items() if name in added]
 
 
 def command_map(rig: Rig) -> Callable[[float], float]:
-    """Effort command -> what the drive is asked for before its dynamics (the roll-off effect)."""
-    rolloff = _effect(rig, "torque_constant_nonlinearity")
-    if rig.model == "testbed":  # the roll-off refers to the rated peak torque; the driver limits the command
-        peak = rig.params.motor.peak_torque_nm
-        limit = CurrentToTorqueMap.from_params(rig.params).command_limit_nm
-    else:
-        peak = limit = rig.rigid.get("peak_effort", math.inf)
-    c = rolloff["torque_rolloff"] if rolloff else 0.0
-    if c and not math.isfinite(peak):
-        raise ValueError("torque_constant_nonlinearity needs the rig's peak effort (peak_effort)")
+    """Effort command -> what the drive is asked for before its dynamics (the effects' command maps, in order;
+    a rigid joint first clips at its peak effort)."""
+    maps = [r.command for r in realisations(rig) if r.command is not None]
+    limit = math.inf if rig.model == "testbed" else rig.rigid.get("peak_effort", math.inf)
 
     def mapped(u: float) -> float:
-        return float(rolled_off(u, c, peak, limit)) if c else u  # (the plant and the rigid joint clip anyway)
+        u = min(max(u, -limit), limit)
+        for f in maps:
+            u = f(u)
+        return u
 
     return mapped
 
 
-def asymmetry_offset(rig: Rig) -> float:
-    """The constant torque of asymmetric friction, -Δ/2 [N·m | N] (0 without the effect)."""
-    asym = _effect(rig, "asymmetric_friction")
-    return -0.5 * asym["asymmetry"] if asym else 0.0
+def joint_load(rig: Rig) -> Callable[[float, float, float], float] | None:
+    """(q, qd, t) -> the effort the effects' loads need [N·m | N], or None without any."""
+    loads = [r.load for r in realisations(rig) if r.load is not None]
+    if not loads:
+        return None
+    return lambda q, qd, t: sum(f(q, qd, t) for f in loads)
 
 
 def testbed_plant(rig: Rig) -> Plant:
     """The testbed plant of a rig, with native cogging written into the compiled model."""
     assert rig.model == "testbed" and rig.params is not None
     plant = Plant(rig.params, rig.fixture)
-    cog = _effect(rig, "cogging")
-    if cog:
-        n = rig.params.motor.gear_ratio
-        poles = 2.0 * math.pi / (n * cog["cogging_period"])
-        if abs(poles - round(poles)) > 1e-6 * poles or round(poles) < 1:
-            raise ValueError(f"cogging_period = {cog['cogging_period']} rad is not 2π/(N·poles) for an integer "
-                             f"pole count (N = {n:g}); MuJoCo's dcmotor cogging needs one")
-        motor = plant.model.actuator("motor").id
-        plant.model.actuator_biasprm[motor, 0:3] = (cog["cogging_amplitude"] / n, round(poles), cog["cogging_phase"])
+    for r in realisations(rig):
+        if r.dcmotor_cogging is not None:
+            motor = plant.model.actuator("motor").id
+            plant.model.actuator_biasprm[motor, 0:3] = r.dcmotor_cogging
     return plant
-
-
-InitialState = Callable[[mujoco.MjModel, mujoco.MjData], None]  # sets qpos/qvel/act after a reset
 
 
 def run_testbed(rig: Rig, command: CommandFn, n_ticks: int, *, backlash_side: int = 0,
@@ -120,21 +110,23 @@ def run_testbed(rig: Rig, command: CommandFn, n_ticks: int, *, backlash_side: in
     cmd_map = command_map(rig)
     if previous_commands is not None:
         plant.hold_commands([cmd_map(float(u)) for u in previous_commands])
-    plant.data.joint("motor").qfrc_applied[0] = asymmetry_offset(rig)  # output side; cleared by Plant.reset
-    grav = _effect(rig, "gravity")
+    load = joint_load(rig)
+    lever_loads = [r.lever_load for r in realisations(rig) if r.lever_load is not None]
+    motor_force = plant.data.joint("motor").qfrc_applied  # output-referred; cleared by Plant.reset
     names = list(SIGNAL_UNITS)
     out = np.empty((n_ticks, len(names)))
     times = np.empty(n_ticks)
     row = np.empty(len(names))
     index = {name: i for i, name in enumerate(names)}
     plant.read_signals(row)
-    state = {key: float(row[index[key]]) for key in ("q", "qd", "q_motor", "tau_flexure", "tau_current_estimate",
-                                                     "force_loadcell")}
+    state = {key: float(row[index[key]]) for key in ("q", "qd", "q_motor", "qd_motor", "tau_flexure",
+                                                     "tau_current_estimate", "force_loadcell")}
+    t0 = plant.time_s
     for k in range(n_ticks):
         u = command(k, state)
-        tau_ext = 0.0
-        if grav:
-            tau_ext = -grav["gravity_amplitude"] * math.sin(state["q"] - grav["gravity_angle"])
+        if load is not None:
+            motor_force[0] = -load(state["q_motor"], state["qd_motor"], plant.time_s - t0)
+        tau_ext = -sum(f(state["q"]) for f in lever_loads) if lever_loads else 0.0
         plant.step(cmd_map(u), tau_ext)
         plant.read_signals(row)
         row[index["tau_cmd"]] = u  # the log holds the command as sent, not as delivered
@@ -147,29 +139,38 @@ def run_testbed(rig: Rig, command: CommandFn, n_ticks: int, *, backlash_side: in
 
 
 def rigid_xml(rig: Rig) -> str:
-    """MJCF of a rigid one-degree-of-freedom joint (slide along x or hinge about z)."""
+    """MJCF of a rigid one-degree-of-freedom joint (slide along x or hinge about z), with a compliant second body
+    if the rig has drivetrain compliance."""
     v = rig.rigid
     h = CONTROL_PERIOD_S / RIGID_SUBSTEPS
-    if v["breakaway"] > v["coulomb"]:
-        raise ValueError("a rigid joint with breakaway > coulomb cannot be simulated here (MuJoCo has no Stribeck "
-                         "curve on a plain joint)")
-    inertial = (f'mass="{v["inertia"]:.9g}" diaginertia="1 1 1"' if rig.joint == "slide" else
-                f'mass="1" diaginertia="{v["inertia"]:.9g} {v["inertia"]:.9g} {v["inertia"]:.9g}"')
+    compliant = next((r.compliant_body for r in realisations(rig) if r.compliant_body is not None), None)
+    fraction, stiffness, damping = compliant or (0.0, 0.0, 0.0)
+
+    def inertial(share: float) -> str:
+        value = share * v["inertia"]
+        return (f'<inertial pos="0 0 0" mass="{value:.9g}" diaginertia="1 1 1"/>' if rig.joint == "slide" else
+                f'<inertial pos="0 0 0" mass="1" diaginertia="{value:.9g} {value:.9g} {value:.9g}"/>')
+
     delay = v.get("delay", 0.0)
     # linear interpolation of the command history: with the default zero-order hold MuJoCo rounds the dead time
-    # up to a whole physics step (measured: 4.42 ms acted as 4.6 ms); interpolated, a command step acts after
-    # the stated delay on average (its impulse arrives exactly ``delay`` late)
+    # up to a whole physics step (4.42 ms acted as 4.6 ms); interpolated, a command step's impulse arrives exactly
+    # ``delay`` late
     delay_attr = f'delay="{delay:.9g}" interp="linear" nsample="{int(delay / h) + 2}"' if delay > 0 else ""
     jtype = "slide" if rig.joint == "slide" else "hinge"
     axis = "1 0 0" if rig.joint == "slide" else "0 0 1"
     imp = RIGID_FRICTION_IMPEDANCE
+    static = max(v["breakaway"], v["coulomb"])
+    second = (f'<body name="compliant"><joint name="compliance" type="{jtype}" axis="{axis}" '
+              f'stiffness="{stiffness:.9g}" damping="{damping:.9g}"/>{inertial(fraction)}</body>'
+              if compliant else "")
     return f"""<mujoco model="rigid_joint">
   <option timestep="{h:.9g}" integrator="Euler"><flag contact="disable" gravity="disable"/></option>
   <worldbody>
     <body name="mover">
-      <joint name="joint" type="{jtype}" axis="{axis}" frictionloss="{v['coulomb']:.9g}" damping="{v['viscous']:.9g}"
+      <joint name="joint" type="{jtype}" axis="{axis}" frictionloss="{static:.9g}" damping="{v['viscous']:.9g}"
              solreffriction="{2 * h:.9g} 1" solimpfriction="{imp} {imp} 0.001 0.5 2"/>
-      <inertial pos="0 0 0" {inertial}/>
+      {inertial(1.0 - fraction)}
+      {second}
     </body>
   </worldbody>
   <actuator>
@@ -177,6 +178,16 @@ def rigid_xml(rig: Rig) -> str:
     <motor name="external" joint="joint" gear="1"/>
   </actuator>
 </mujoco>"""
+
+
+def stribeck_giveback(rig: Rig) -> Callable[[float], float] | None:
+    """qd -> the sliding friction a rigid joint's static ``frictionloss`` overstates, ``(F_s - g(v))·sign(v)``
+    [N·m | N] (None without a Stribeck drop)."""
+    v = rig.rigid
+    fc, fs, vs = v["coulomb"], v["breakaway"], v["stribeck_velocity"]
+    if not fs > fc:
+        return None
+    return lambda qd: math.copysign((fs - fc) * (1.0 - math.exp(-(qd / vs) ** 2)), qd)
 
 
 def run_rigid(rig: Rig, command: CommandFn, n_ticks: int, *, initial: InitialState | None = None,
@@ -188,48 +199,49 @@ def run_rigid(rig: Rig, command: CommandFn, n_ticks: int, *, initial: InitialSta
     if initial is not None:
         initial(model, data)
         mujoco.mj_forward(model, data)
-    cmd_map, offset = command_map(rig), asymmetry_offset(rig)
+    cmd_map = command_map(rig)
     drive = model.actuator("drive").id
     if previous_commands is not None:
-        past = np.array([cmd_map(float(u)) + offset for u in previous_commands])
+        past = np.array([cmd_map(float(u)) for u in previous_commands])
         prime_ctrl_history(model, data, drive, past, RIGID_SUBSTEPS * model.opt.timestep)
         data.ctrl[drive] = past[-1]
-    grav = _effect(rig, "gravity")
-    cog = _effect(rig, "cogging")
-    base_gravity = rig.rigid.get("gravity_amplitude", 0.0)
+    load = joint_load(rig)
+    base_gravity, base_angle = rig.rigid.get("gravity_amplitude", 0.0), rig.rigid.get("gravity_angle", 0.0)
+    giveback = stribeck_giveback(rig)
+    slide = rig.joint == "slide"
     external = model.actuator("external").id
+    t0 = data.time
+
+    def force(q: float, qd: float) -> float:
+        needed = (base_gravity if slide else base_gravity * math.sin(q - base_angle)) if base_gravity else 0.0
+        if load is not None:
+            needed += load(q, qd, data.time - t0)
+        return (giveback(qd) if giveback is not None else 0.0) - needed
+
+    per_step = giveback is not None or load is not None
     out = np.empty((n_ticks, 4))
     state = {"q": float(data.qpos[0]), "qd": float(data.qvel[0])}
     for k in range(n_ticks):
         u = command(k, state)
-        q = state["q"]
-        load = 0.0
-        for amplitude, angle in ((base_gravity, rig.rigid.get("gravity_angle", 0.0)),
-                                 ((grav or {}).get("gravity_amplitude", 0.0), (grav or {}).get("gravity_angle", 0.0))):
-            load += amplitude if rig.joint == "slide" else amplitude * math.sin(q - angle)
-        if cog:
-            load -= cog["cogging_amplitude"] * math.sin(2 * math.pi * q / cog["cogging_period"] + cog["cogging_phase"])
-        data.ctrl[drive] = cmd_map(u) + offset
-        data.ctrl[external] = -load
-        mujoco.mj_step(model, data, RIGID_SUBSTEPS)
+        data.ctrl[drive] = cmd_map(u)
+        if per_step:
+            for _ in range(RIGID_SUBSTEPS):
+                data.ctrl[external] = force(float(data.qpos[0]), float(data.qvel[0]))
+                mujoco.mj_step(model, data)
+        else:
+            data.ctrl[external] = force(state["q"], state["qd"])
+            mujoco.mj_step(model, data, RIGID_SUBSTEPS)
         state["q"], state["qd"] = float(data.qpos[0]), float(data.qvel[0])
         out[k] = (data.time, u, state["q"], state["qd"])
-    lin = rig.joint == "slide"
-    units = {"time": "s", "tau_cmd": "N" if lin else "N·m", "q": "m" if lin else "rad", "qd": "m/s" if lin else "rad/s"}
+    units = {"time": "s", "tau_cmd": "N" if slide else "N·m", "q": "m" if slide else "rad",
+             "qd": "m/s" if slide else "rad/s"}
     return SimulatedRun({name: out[:, i].copy() for i, name in enumerate(units)}, units)
 
 
 def sensor_reading(truth: Rig, tau: np.ndarray, temperature: np.ndarray) -> np.ndarray:
-    """The torque sensor's output for the true flexure torque (its effects applied, noise not yet)."""
-    from sim.discrepancy.model import play_operator  # the same elastic-plastic element the analysis fits
-
-    values = {"sensor_offset": 0.0, "sensor_gain": 1.0, "sensor_tempco": 0.0, "sensor_hysteresis": 0.0,
-              "sensor_hysteresis_span": 1.0}
-    for effect in truth.effects:
-        values.update({k: v for k, v in effect.parameters.items() if k in values})
-    reading = values["sensor_gain"] * tau + values["sensor_offset"]
-    reading = reading + values["sensor_tempco"] * (temperature - truth.params.photoreflector.reference_temperature_c)
-    if values["sensor_hysteresis"]:
-        span = values["sensor_hysteresis_span"]
-        reading = reading + values["sensor_hysteresis"] / span * (tau - play_operator(tau, span))
+    """The torque sensor's output for the true flexure torque (its effects applied, noise not yet) [N·m]."""
+    reading = np.asarray(tau, dtype=float).copy()
+    for r in realisations(truth):
+        if r.sensor is not None:
+            reading = reading + r.sensor(np.asarray(tau, dtype=float), np.asarray(temperature, dtype=float))
     return reading

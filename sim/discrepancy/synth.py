@@ -31,14 +31,14 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from controllers.pi import PITorqueController
-from sim.discrepancy.effects import EFFECTS
+from sim.discrepancy.effects import rig_kind, spec
 from sim.discrepancy.rig import AddedEffect, Rig, rig_from_dict
 from sim.discrepancy.signals import quantise
 from sim.discrepancy.simulate import run_rigid, run_testbed, sensor_reading
 from sim.logio import SlideRunLog
 from sim.motor_torque import CurrentToTorqueMap
 from sim.params import TestbedParams, field_range
-from sim.runlog import RunLog
+from sim.runlog import HOLD_END, RunLog
 
 TAU_SENSOR_NOISE_NM = 5e-3  # assumed: calibrated optical sensor, white noise std at 1 kHz
 LOADCELL_NOISE_N = 0.05  # assumed: 0.01 % of the SBA-50L's 500 N
@@ -56,12 +56,17 @@ FREE_SWING_RAD = ((2.5, 0.2), (0.6, 1.1))  # lever angle reference (amplitude [r
 FREE_KP_NM_PER_RAD, FREE_KD_NMS_PER_RAD = 3.0, 0.15  # position PD of the free swing
 FREE_COMMAND_LIMIT_NM = 4.0
 SLIDE_SWING_M = ((0.15, 0.25), (0.04, 1.3))
+HINGE_SWING_RAD = ((1.5, 0.25), (0.4, 1.3))  # rigid hinge: position reference (amplitude [rad], frequency [Hz])
+HINGE_KP_NM_PER_RAD, HINGE_KD_NMS_PER_RAD = 10.0, 1.0
+HINGE_COMMAND_LIMIT_NM = 8.0
+HINGE_ENCODER_COUNTS = 2**17  # assumed: counts per turn of the rigid hinge's encoder
 SLIDE_KP_N_PER_M, SLIDE_KD_NS_PER_M = 400.0, 40.0
 SLIDE_COMMAND_LIMIT_N = 60.0
 PI_REFERENCE = ((4.0, 0.25), (0.6, 2.3))  # torque reference of the closed-loop logs (amplitude, frequency)
 PI_BIAS_NM = 0.5
 
-EXPERIMENTS = ("locked", "free", "locked_pi_sensor", "locked_pi_current", "slide")
+EXPERIMENTS = ("locked", "free", "locked_pi_sensor", "locked_pi_current", "slide", "hinge")
+RIGID_EXPERIMENTS = ("slide", "hinge")
 # The experiment whose log reveals each effect (docs/discrepancy.md, "Effects and the experiments that reveal
 # them"; the hidden-effect sweep recovers each from it). Presliding also needs a fine motor encoder.
 REVEALING_EXPERIMENT = {
@@ -69,20 +74,24 @@ REVEALING_EXPERIMENT = {
     "asymmetric_friction": "free", "load_dependent_friction": "locked", "presliding_friction": "locked_pi_current",
     "backlash": "locked", "cogging": "free", "torque_constant_nonlinearity": "locked", "transport_delay": "free",
     "gravity": "free", "sensor_offset": "locked", "sensor_gain": "locked", "sensor_thermal_drift": "locked",
-    "sensor_hysteresis": "locked",
+    "sensor_hysteresis": "locked", "effort_gain": "locked", "quadratic_drag": "free", "position_spring": "free",
+    "periodic_disturbance": "free", "drivetrain_compliance": "hinge", "inertia": "hinge",
 }
 
 BASELINE_SLIDE_RIG = {"model": "rigid-joint", "joint": "slide", "mass_kg": 2.0, "effort_gain": 1.0,
                       "peak_effort": 100.0, "friction": {"coulomb": 3.0, "viscous": 8.0}}
+BASELINE_HINGE_RIG = {"model": "rigid-joint", "joint": "hinge", "inertia_kgm2": 0.05, "effort_gain": 1.0,
+                      "peak_effort": 10.0, "friction": {"coulomb": 0.3, "viscous": 0.05}}
+RIGID_BASELINES = {"slide": BASELINE_SLIDE_RIG, "hinge": BASELINE_HINGE_RIG}
 
 
 def baseline_rig(experiment: str, overrides: dict[str, dict[str, float]] | None = None) -> Rig:
     """The baseline rig description of an experiment: the testbed (``sim.params`` defaults, or ``overrides`` in the
     ``--params`` schema, e.g. ``{"friction": {"load_friction_coefficient": 0.1}}``), or the slide stage."""
-    if experiment == "slide":
+    if experiment in RIGID_EXPERIMENTS:
         if overrides:
-            raise ValueError("overrides apply to the testbed's parameters, not the slide stage")
-        return rig_from_dict(BASELINE_SLIDE_RIG, source="slide baseline")
+            raise ValueError(f"overrides apply to the testbed's parameters, not the rigid {experiment}")
+        return rig_from_dict(RIGID_BASELINES[experiment], source=f"{experiment} baseline")
     fixture = "free" if experiment == "free" else "locked"
     return rig_from_dict({"model": "testbed", "fixture": fixture, **(overrides or {})},
                          source=f"testbed {fixture} baseline")
@@ -130,31 +139,9 @@ def random_baseline_overrides(seed: int) -> dict[str, dict[str, float]]:
     return out
 
 
-# Ranges of each hidden effect, (low, high) per parameter, drawn with a random sign/direction where listed.
-# An effect the baseline already carries (friction levels, viscous, load-dependent friction, presliding,
-# backlash, dead time) is changed *relative to the rig's own value*: a factor drawn away from 1 (up or down)
-# by at least the low bound, so that a hidden change is a real one on any baseline (docs/discrepancy.md,
-# "Synthetic logs"). The factors reproduce, on the defaults before 2026-11-23 (load friction 0.1, backlash
-# 3.5 mrad), the absolute ranges the sweep was tuned on.
-COULOMB_UP, COULOMB_DOWN = (1.244, 1.389), (0.5, 0.778)  # x F_c (0.112-0.125, 0.045-0.07 N·m at 0.09)
-COULOMB_BELOW_BREAKAWAY = 0.97  # a raised Coulomb level stays below 0.97 F_s (else it is drawn lower instead)
-VISCOUS_UP, VISCOUS_DOWN = (2.0, 3.0), (0.2, 0.4)  # x σ2
-BREAKAWAY_UP = (1.308, 1.923)  # x F_s (0.17-0.25 N·m at 0.13)
-STRIBECK_VELOCITY_SPAN = (0.4, 2.0)  # x v_s (0.02-0.1 rad/s at 0.05); F_s already changes by >= 31 %
-LOAD_COEFFICIENT_UP, LOAD_COEFFICIENT_DOWN = (1.5, 2.0), (0.3, 0.6)  # x μ (0.15-0.2, 0.03-0.06 at the former 0.1)
-LOAD_COEFFICIENT_IF_NONE = (0.05, 0.15)  # [1] absolute, for a baseline without load-dependent friction
-PRESLIDING_UP = (2.0, 4.0)  # x σ0, stiffer only (4000-8000 N·m/rad at 2000); see draw_effect
-BACKLASH_UP, BACKLASH_DOWN = (1.714, 2.857), (0.2857, 0.5714)  # x width (6-10, 1-2 mrad at the former 3.5 mrad)
-EXTRA_DELAY_S = (1.5e-3, 5.5e-3)  # [s] dead time added to the rig's (2-6 ms at the default 0.5 ms)
-
-
-def _factor(rng: np.random.Generator, up: bool, up_range: tuple[float, float],
-            down_range: tuple[float, float]) -> float:
-    return float(rng.uniform(*(up_range if up else down_range)))
-
-
 def draw_effect(name: str, rig: Rig, rng: np.random.Generator) -> tuple[dict[str, float], dict[str, float]]:
-    """A random hidden effect: (native parameter overrides by theta key, added-effect parameters).
+    """A random hidden effect from its module's synthetic range (``Effect.draw``): (the rig's own parameters it
+    changes, by theta key; the parameters of an added effect).
 
     Parameters
     ----------
@@ -165,66 +152,14 @@ def draw_effect(name: str, rig: Rig, rng: np.random.Generator) -> tuple[dict[str
     rng : numpy.random.Generator
         The draw's random source.
     """
-    u = rng.uniform
-    up = rng.random() < 0.5
-    slide = rig.joint == "slide"
-    fr = None if slide else rig.params.friction
-    if name == "coulomb_friction":
-        if slide:  # MuJoCo's frictionloss is one level: static and sliding move together
-            level = rig.rigid["coulomb"] * (u(1.3, 1.6) if up else u(0.5, 0.7))
-            return {"coulomb": level, "breakaway": level}, {}
-        factor = _factor(rng, up, COULOMB_UP, COULOMB_DOWN)
-        if fr.coulomb_torque_nm * factor > COULOMB_BELOW_BREAKAWAY * fr.breakaway_torque_nm:
-            factor = _factor(rng, False, COULOMB_UP, COULOMB_DOWN)  # no room below the breakaway level
-        return {"coulomb": fr.coulomb_torque_nm * factor}, {}
-    if name == "viscous_friction":
-        base = rig.rigid["viscous"] if slide else fr.viscous_nms_per_rad
-        return {"viscous": base * _factor(rng, up, VISCOUS_UP, VISCOUS_DOWN)}, {}
-    if name == "stribeck_friction":
-        if slide:
-            raise ValueError("stribeck_friction cannot be hidden in a rigid joint (MuJoCo has no Stribeck curve "
-                             "on a plain joint)")
-        return {"breakaway": fr.breakaway_torque_nm * u(*BREAKAWAY_UP),
-                "stribeck_velocity": fr.stribeck_velocity_rad_s * u(*STRIBECK_VELOCITY_SPAN)}, {}
-    if name == "asymmetric_friction":
-        scale = 1.0 if not slide else 10.0
-        return {}, {"asymmetry": scale * u(0.03, 0.06) * (1 if up else -1)}
-    if name == "load_dependent_friction":
-        if fr.load_friction_coefficient == 0.0:
-            return {"load_coefficient": u(*LOAD_COEFFICIENT_IF_NONE)}, {}
-        return {"load_coefficient": fr.load_friction_coefficient
-                * _factor(rng, up, LOAD_COEFFICIENT_UP, LOAD_COEFFICIENT_DOWN)}, {}
-    if name == "presliding_friction":
-        # stiffer only: below the baseline the step rule lengthens the physics step past half the backlash stop's
-        # tuned time constant, and the plant refuses the parameter set
-        return {"presliding_stiffness": fr.presliding_stiffness_nm_per_rad * u(*PRESLIDING_UP)}, {}
-    if name == "backlash":
-        return {"backlash_width": rig.params.backlash.width_rad * _factor(rng, up, BACKLASH_UP, BACKLASH_DOWN)}, {}
-    if name == "cogging":
-        if slide:
-            return {}, {"cogging_amplitude": u(1.0, 2.0), "cogging_period": u(0.02, 0.04),
-                        "cogging_phase": u(-math.pi, math.pi)}
-        poles = int(rng.integers(10, 30))
-        return {}, {"cogging_amplitude": u(0.02, 0.05), "cogging_period": 2 * math.pi / (8 * poles),
-                    "cogging_phase": u(-math.pi, math.pi)}
-    if name == "torque_constant_nonlinearity":
-        return {}, {"torque_rolloff": u(0.05, 0.15)}
-    if name == "transport_delay":
-        base = rig.rigid.get("delay", 0.0) if slide else rig.params.motor.command_delay_s
-        return {"delay": base + u(*EXTRA_DELAY_S)}, {}
-    if name == "gravity":
-        if slide:
-            return {}, {"gravity_amplitude": u(3.0, 6.0) * (1 if up else -1), "gravity_angle": 0.0}
-        return {}, {"gravity_amplitude": u(0.03, 0.06), "gravity_angle": u(-math.pi, math.pi)}
-    if name == "sensor_offset":
-        return {}, {"sensor_offset": u(0.03, 0.1) * (1 if up else -1)}
-    if name == "sensor_gain":
-        return {}, {"sensor_gain": 1.0 + u(0.02, 0.05) * (1 if up else -1)}
-    if name == "sensor_thermal_drift":
-        return {}, {"sensor_tempco": u(3e-3, 1e-2) * (1 if up else -1)}
-    if name == "sensor_hysteresis":
-        return {}, {"sensor_hysteresis": u(0.02, 0.05), "sensor_hysteresis_span": u(0.5, 2.0)}
-    raise KeyError(f"unknown effect {name!r}; the library has: {', '.join(EFFECTS)}")
+    effect = spec(name)
+    if not effect.applies(rig):
+        raise ValueError(f"{name} does not apply to a {rig_kind(rig)} rig (it applies to: {', '.join(sorted(effect.rigs))})")
+    values = effect.draw(rig, rng)
+    if effect.native(rig):
+        return values, {}
+    extra = {k: v for k, v in values.items() if k in effect.keys}
+    return {k: v for k, v in values.items() if k not in extra}, extra
 
 
 @dataclass(frozen=True)
@@ -279,16 +214,22 @@ def synth_log(experiment: str, truth: Rig, duration_s: float, seed: int, *,
     n = int(round(duration_s / 1e-3))
     t_of = lambda k: k * 1e-3  # noqa: E731  (command k is sent at the start of tick k)
     noise_tau = rng.normal(0.0, TAU_SENSOR_NOISE_NM, n)
-    if experiment == "slide":
+    if experiment in RIGID_EXPERIMENTS:
+        slide = experiment == "slide"
+        swing, kp, kd, limit = ((SLIDE_SWING_M, SLIDE_KP_N_PER_M, SLIDE_KD_NS_PER_M, SLIDE_COMMAND_LIMIT_N) if slide
+                                else (HINGE_SWING_RAD, HINGE_KP_NM_PER_RAD, HINGE_KD_NMS_PER_RAD, HINGE_COMMAND_LIMIT_NM))
+
         def command(k: int, s: dict[str, float]) -> float:
-            ref = sum(a * math.sin(2 * math.pi * f * t_of(k)) for a, f in SLIDE_SWING_M)
-            u = SLIDE_KP_N_PER_M * (ref - s["q"]) - SLIDE_KD_NS_PER_M * s["qd"]
-            return min(max(u, -SLIDE_COMMAND_LIMIT_N), SLIDE_COMMAND_LIMIT_N)
+            ref = sum(a * math.sin(2 * math.pi * f * t_of(k)) for a, f in swing)
+            return min(max(kp * (ref - s["q"]) - kd * s["qd"], -limit), limit)
 
         run = run_rigid(truth, command, n)
-        cols = {"time": run.columns["time"], "tau_cmd": run.columns["tau_cmd"],
-                "q": quantise(run.columns["q"], LINEAR_ENCODER_STEP_M)}
-        return SlideRunLog(cols, {"time": "s", "tau_cmd": "N", "q": "m"}, {"experiment": experiment, "seed": seed})
+        step = LINEAR_ENCODER_STEP_M if slide else 2 * math.pi / HINGE_ENCODER_COUNTS
+        cols = {"time": run.columns["time"], "tau_cmd": run.columns["tau_cmd"], "q": quantise(run.columns["q"], step)}
+        meta = {"experiment": experiment, "seed": seed, "time_convention": HOLD_END}
+        if slide:
+            return SlideRunLog(cols, {"time": "s", "tau_cmd": "N", "q": "m"}, meta)
+        return RunLog(cols, {"time": "s", "tau_cmd": "N·m", "q": "rad"}, meta)
 
     n_gear = truth.params.motor.gear_ratio
     if experiment == "locked":
@@ -331,7 +272,7 @@ def synth_log(experiment: str, truth: Rig, duration_s: float, seed: int, *,
         cols["force_loadcell"] = c["force_loadcell"] + rng.normal(0.0, LOADCELL_NOISE_N, n)
         units["force_loadcell"] = "N"
     return RunLog(cols, units, {"experiment": experiment, "seed": seed, "fixture": truth.fixture,
-                                "motor_encoder_counts": motor_encoder_counts})
+                                "motor_encoder_counts": motor_encoder_counts, "time_convention": HOLD_END})
 
 
 def hidden_effect_log(experiment: str, effects: list[str], seed: int, duration_s: float, *,

@@ -1,0 +1,159 @@
+"""Checks of a log against its rig before any analysis: implausible input is refused, not analysed.
+
+Each check names the column, the row (spreadsheet numbering, the header is row 1) and what was seen:
+
+- the time column: a sampling step too coarse for the analysis band (a time column in milliseconds);
+- the command: beyond the rig's peak effort (the testbed: the driver's current limit) by more than 1 %
+  (a command in mN·m, a wrong gain);
+- the positions of a hinge: a jump of about 2π in one sample (an encoder wrapped to one turn; ``unwrap``
+  unwraps it);
+- the fixture: a locked testbed log whose lever turns;
+- the effort balance, once the baseline is fitted (:func:`check_effort_balance`): a model that needs several
+  times the logged effort to make the logged motion (positions in degrees or millimetres, a wrong mass).
+
+:func:`to_hold_end` brings a log stamped in the ``command`` time convention to the ``hold_end`` convention the
+analysis uses (``docs/run_log_format.md``).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from sim.discrepancy.rig import Rig
+from sim.logio import row_of
+from sim.motor_torque import CurrentToTorqueMap
+from sim.runlog import HOLD_END, TIME_CONVENTIONS, RunLog
+
+PEAK_TOLERANCE = 0.01  # commands may exceed the rig's peak effort by 1 % (rounding in the log)
+WRAP_TOLERANCE = 0.1  # a step within 10 % of 2π ...
+WRAP_STEP_RATIO = 50.0  # ... and 50 x the median nonzero step is a wrap
+LOCKED_MOTION_RAD = 0.05  # a locked lever turns by less than 0.05 rad (3°: the load cell's full deflection is ~0.1°)
+MAX_EFFORT_RATIO = 3.0  # the baseline's effort error may not exceed 3 x the command (RMS)
+POSITION_COLUMNS = ("q", "q_motor")
+
+
+class InputError(ValueError):
+    """A log that the rig cannot have produced, or that is not what its columns claim; ``column`` and ``row``
+    name where (row: spreadsheet numbering, the header is row 1)."""
+
+    def __init__(self, message: str, *, column: str | None = None, row: int | None = None) -> None:
+        super().__init__(message)
+        self.column, self.row = column, row
+
+
+def peak_command(rig: Rig) -> float:
+    """The largest command the rig accepts [N·m | N] (inf if it states none)."""
+    if rig.model == "testbed":
+        assert rig.params is not None
+        return CurrentToTorqueMap.from_params(rig.params).command_limit_nm
+    return rig.rigid.get("peak_effort", math.inf)
+
+
+def time_convention(log: RunLog, rig: Rig) -> tuple[str, str]:
+    """(convention, where it comes from): the rig's ``time_convention``, the log's metadata, or the default
+    ``hold_end``; a rig and a log that disagree are refused."""
+    stated = log.meta.get("time_convention")
+    if stated is not None and stated not in TIME_CONVENTIONS:
+        raise InputError(f"the log's metadata says time_convention = {stated!r}; valid values are "
+                         f"{', '.join(map(repr, TIME_CONVENTIONS))}")
+    if rig.time_convention is not None:
+        if stated is not None and stated != rig.time_convention:
+            raise InputError(f"rig {rig.source} says time_convention = {rig.time_convention!r} but the log's "
+                             f"metadata says {stated!r}")
+        return rig.time_convention, f"rig {rig.source}"
+    if stated is not None:
+        return stated, "the log's metadata"
+    return HOLD_END, "assumed (neither the rig nor the log states it)"
+
+
+def to_hold_end(log: RunLog, convention: str) -> RunLog:
+    """``log`` in the hold-end convention: row k's state follows the commands up to row k.
+
+    In the ``command`` convention row k holds the state measured when command k was computed, so command k acts
+    after it: the state of row k + 1 is the first to follow it. Pairing each state with the command before it
+    (and dropping the first row, whose preceding command is not in the log) is the same physics stamped at the
+    end of each hold.
+    """
+    if convention == HOLD_END:
+        return log
+    columns = {name: np.asarray(values)[1:] for name, values in log.columns.items()}
+    columns["tau_cmd"] = np.asarray(log["tau_cmd"])[:-1]
+    return type(log)(columns, dict(log.units), {**log.meta, "time_convention": HOLD_END})
+
+
+def check_log(log: RunLog, rig: Rig, *, unwrap: bool = False, filter_cutoff_hz: float) -> RunLog:
+    """Refuse a log the rig cannot have produced (module docstring); return it, with its hinge angles unwrapped
+    if ``unwrap``.
+
+    Raises
+    ------
+    InputError
+        Naming the column, the row and what was seen.
+    """
+    t = np.asarray(log["time"], dtype=float)
+    dt = float(np.median(np.diff(t)))
+    if dt >= 0.5 / filter_cutoff_hz:
+        hint = (" Column 'time' looks like milliseconds: divide it by 1000." if 0.5 <= dt <= 2.0 else "")
+        raise InputError(f"column 'time': the median sampling step is {dt:.6g} s ({1 / dt:.4g} Hz); the analysis "
+                         f"band ({filter_cutoff_hz:g} Hz) needs at least {2 * filter_cutoff_hz:g} Hz.{hint}",
+                         column="time")
+    u = np.asarray(log["tau_cmd"], dtype=float)
+    peak = peak_command(rig)
+    worst = int(np.argmax(np.abs(u)))
+    if abs(u[worst]) > (1.0 + PEAK_TOLERANCE) * peak:
+        unit = log.units.get("tau_cmd", "")
+        ratio = abs(u[worst]) / peak
+        hint = (" Is the command in mN·m or mN?" if ratio > 100 else
+                " Is the command in another unit, or is the rig's peak effort wrong?")
+        raise InputError(f"column 'tau_cmd', row {row_of(worst)}: {u[worst]:.6g} {unit} is {ratio:.3g} x the rig's "
+                         f"peak command {peak:.6g} {unit}; the rig cannot have applied it.{hint}",
+                         column="tau_cmd", row=row_of(worst))
+    columns = dict(log.columns)
+    if rig.joint == "hinge":
+        for name in POSITION_COLUMNS:
+            if name not in columns:
+                continue
+            q = np.asarray(columns[name], dtype=float)
+            wraps = wrapped_steps(q)
+            if len(wraps) and unwrap:
+                columns[name] = np.unwrap(q)
+            elif len(wraps):
+                k = int(wraps[0])
+                raise InputError(f"column {name!r}, row {row_of(k + 1)}: the angle jumps by {q[k + 1] - q[k]:+.4g} rad "
+                                 f"in one sample ({len(wraps)} such jump(s)): an encoder wrapped to one turn? "
+                                 f"Unwrap it (--unwrap)", column=name, row=row_of(k + 1))
+    if rig.model == "testbed" and rig.fixture == "locked" and "q" in columns:
+        q = np.asarray(columns["q"], dtype=float)
+        span = float(np.ptp(q))
+        if span > LOCKED_MOTION_RAD:
+            k = int(np.argmax(np.abs(q - q[0])))
+            raise InputError(f"column 'q': the lever turns through {span:.3g} rad (row {row_of(k)} is "
+                             f"{q[k] - q[0]:+.3g} rad from the first), but rig {rig.source} says fixture = 'locked' "
+                             f"(at most {LOCKED_MOTION_RAD:g} rad); is it a free-fixture log?", column="q",
+                             row=row_of(k))
+    if columns is log.columns or all(columns[k] is log.columns[k] for k in columns):
+        return log
+    return type(log)(columns, dict(log.units), dict(log.meta))
+
+
+def wrapped_steps(q: np.ndarray) -> np.ndarray:
+    """Indices k where ``q[k+1] - q[k]`` is about ±2π and far above the typical step (a wrapped encoder)."""
+    steps = np.diff(q)
+    moving = np.abs(steps[steps != 0])
+    if not len(moving):
+        return np.zeros(0, dtype=int)
+    typical = float(np.median(moving))
+    near_turn = np.abs(np.abs(steps) - 2 * math.pi) < WRAP_TOLERANCE * 2 * math.pi
+    return np.flatnonzero(near_turn & (np.abs(steps) > WRAP_STEP_RATIO * typical))
+
+
+def check_effort_balance(effort_rmse: float, command_rms: float, unit: str, position_unit: str) -> None:
+    """Refuse a baseline that needs several times the logged effort to make the logged motion."""
+    if command_rms > 0 and effort_rmse > MAX_EFFORT_RATIO * command_rms:
+        raise InputError(f"the rig cannot produce the logged motion with the logged effort: the baseline's effort "
+                         f"error is {effort_rmse:.4g} {unit} RMS, {effort_rmse / command_rms:.3g} x the command's "
+                         f"{command_rms:.4g} {unit}. Check the units of 'q' ({position_unit}; degrees or "
+                         f"millimetres?), 'tau_cmd' ({unit}) and 'time' (s), and the rig's inertia or mass",
+                         column="q")

@@ -1,0 +1,125 @@
+"""Cogging: a position-periodic effort of the motor's magnets, ``A·sin(2π·x/P + φ)`` (x the motor-side position).
+
+On the testbed the candidate periods are those of a motor with an integer number of poles, ``2π/(N·poles)`` of the
+output angle (N the gear ratio); on a rigid joint a log-spaced grid from 20 encoder steps to the position span.
+The fit screens every period (amplitude and phase are a linear sub-problem for each) and refines the best.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from sim.discrepancy.effects.base import TWO_PI, Effect, Param, Realisation, correlation, wrap_angle
+
+MIN_PERIODS_IN_RANGE = 3  # a period must fit at least 3 times in the position range
+MAX_POLES = 60  # the testbed: pole counts tried, 1..60
+RIGID_PERIOD_GRID = 300  # a rigid joint: log-spaced periods tried
+MIN_PERIOD_STEPS = 20  # a rigid joint: the shortest period tried, in encoder steps
+TESTBED_AMPLITUDE_NM, TESTBED_POLES = (0.02, 0.05), (10, 30)  # synthetic draws (8:1 gear)
+RIGID_AMPLITUDE_OF_COULOMB = (0.3, 0.6)  # synthetic draws: x the rig's Coulomb level
+RIGID_PERIOD = {"hinge": (0.1, 0.3), "slide": (0.02, 0.04)}  # synthetic draws [rad | m]
+
+
+def candidate_periods(model, position_span: float) -> np.ndarray:
+    """Cogging periods the log can reveal [rad | m]."""
+    if model.testbed:
+        periods = TWO_PI / (model.const["gear_ratio"] * np.arange(1, MAX_POLES + 1))
+    else:
+        resolution = max(model.data.position_resolution, 1e-9)
+        periods = np.geomspace(max(MIN_PERIOD_STEPS * resolution, 1e-6), max(position_span, 1e-6),
+                               RIGID_PERIOD_GRID)
+    return periods[periods * MIN_PERIODS_IN_RANGE <= position_span]
+
+
+class Cogging(Effect):
+    name = "cogging"
+    description = "position-periodic torque of the magnets"
+    params = (Param("cogging_amplitude", "N·m", "N", "cogging amplitude A"),
+              Param("cogging_period", "rad", "m", "period P in joint position", neutral=None, default=1.0),
+              Param("cogging_phase", "rad", "rad", "phase φ at position 0", neutral=None, cyclic=True))
+    signature = "position modulo candidate periods"
+    order = 30
+
+    def bounds(self, key, scale, theta):
+        if key == "cogging_amplitude":
+            return 0.0, scale.effort
+        if key == "cogging_period":
+            return 1e-9, max(scale.position_span, 1e-9)
+        return -2 * math.pi, 2 * math.pi
+
+    def canonical(self, theta, joint):
+        theta = dict(theta)
+        if theta["cogging_amplitude"] < 0:
+            theta["cogging_amplitude"] = -theta["cogging_amplitude"]
+            theta["cogging_phase"] += math.pi
+        theta["cogging_phase"] = wrap_angle(theta["cogging_phase"])
+        return theta
+
+    def basis(self, model, period: float) -> tuple[np.ndarray, np.ndarray]:
+        """filt(sin(2π·x/P)), filt(cos(2π·x/P)) on the grid."""
+        def compute():
+            phase = TWO_PI * model.data.position_full / period
+            return model.data.filt(np.sin(phase)), model.data.filt(np.cos(phase))
+        return model.memo("cogging", (period,), compute)
+
+    def load(self, model, theta):
+        amplitude = theta["cogging_amplitude"]
+        if amplitude == 0.0:
+            return 0.0
+        s, c = self.basis(model, theta["cogging_period"])
+        phi = theta["cogging_phase"]
+        return -amplitude * (math.cos(phi) * s + math.sin(phi) * c)  # the magnets push: the joint needs less
+
+    def starts(self, model, theta):
+        r = model.residuals(theta)["effort"]
+        ok = model.data.fit & np.isfinite(r)
+        span = float(np.ptp(model.data.position[ok])) if ok.any() else 0.0
+        best = None
+        for period in candidate_periods(model, span):
+            s, c = self.basis(model, float(period))
+            a = np.column_stack([s[ok], c[ok]])
+            coef, *_ = np.linalg.lstsq(a, -r[ok], rcond=None)  # residual - load = 0
+            explained = float(np.sum((a @ coef) ** 2))
+            if best is None or explained > best[0]:
+                best = (explained, {"cogging_amplitude": float(math.hypot(*coef)), "cogging_period": float(period),
+                                    "cogging_phase": float(math.atan2(coef[1], coef[0]))})
+        return ([best[1]] if best else []), ("cogging_period",)
+
+    def identifiable(self, model, theta):
+        span = float(np.ptp(model.data.position))
+        if not len(candidate_periods(model, span)):
+            return f"the position spans {span:.3g}, less than {MIN_PERIODS_IN_RANGE} of any candidate period"
+        return None
+
+    def evidence(self, model, theta, residual, mask):
+        best = 0.0
+        for period in candidate_periods(model, float(np.ptp(model.data.position))):
+            s, c = self.basis(model, float(period))
+            best = max(best, math.hypot(correlation(residual[mask], s[mask]), correlation(residual[mask], c[mask])))
+        return best
+
+    def realise(self, values, rig):
+        amplitude, period, phase = values["cogging_amplitude"], values["cogging_period"], values["cogging_phase"]
+        if rig.model == "testbed":
+            n = rig.params.motor.gear_ratio
+            poles = TWO_PI / (n * period)
+            if abs(poles - round(poles)) > 1e-6 * poles or round(poles) < 1:
+                raise ValueError(f"cogging_period = {period} rad is not 2π/(N·poles) for an integer pole count "
+                                 f"(N = {n:g}); MuJoCo's dcmotor cogging needs one")
+            return Realisation(dcmotor_cogging=(amplitude / n, round(poles), phase))
+        return Realisation(load=lambda q, qd, t: -amplitude * math.sin(TWO_PI * q / period + phase))
+
+    def draw(self, rig, rng):
+        phase = float(rng.uniform(-math.pi, math.pi))
+        if rig.model == "testbed":
+            poles = int(rng.integers(*TESTBED_POLES))
+            return {"cogging_amplitude": float(rng.uniform(*TESTBED_AMPLITUDE_NM)),
+                    "cogging_period": TWO_PI / (rig.params.motor.gear_ratio * poles), "cogging_phase": phase}
+        low, high = RIGID_AMPLITUDE_OF_COULOMB
+        return {"cogging_amplitude": rig.rigid["coulomb"] * float(rng.uniform(low, high)),
+                "cogging_period": float(rng.uniform(*RIGID_PERIOD[rig.joint])), "cogging_phase": phase}
+
+
+EFFECT = Cogging()

@@ -1,0 +1,93 @@
+"""Stribeck friction: a static (breakaway) level above the sliding one, falling with velocity.
+
+The sliding friction is ``F_c + (F_s - F_c)·exp(-(v/v_s)²)``: the breakaway level ``F_s`` at rest, the Coulomb
+level ``F_c`` well above the Stribeck velocity ``v_s``. A rig without the effect has ``F_s = F_c`` (its Stribeck
+velocity is then irrelevant); its fit starts from a grid of velocities scaled to the log's, not from the rig's.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from sim.discrepancy.effects.base import Effect, Param, needs_sliding
+
+BREAKAWAY_UP = (1.308, 1.923)  # synthetic draws: x F_s (the testbed), x F_c (a rigid joint)
+STRIBECK_VELOCITY_SPAN = (0.4, 2.0)  # the testbed: x v_s
+RIGID_STRIBECK_VELOCITY = {"hinge": (0.05, 0.2), "slide": (0.005, 0.02)}  # a rigid joint: v_s [rad/s | m/s]
+MIN_LOW_SPEED_FRACTION = 0.02  # >= 2 % of the samples sliding between v_s/3 and 3·v_s (or in the low-speed range)
+LOW_SPEED_RANGE = (1e-3, 0.3)  # without a stated v_s: the Stribeck velocity is looked for in this x |v|_max
+MAX_LEVEL_OF_EFFORT = 2.0
+VELOCITY_GRID = (0.3, 1.0, 3.0)  # starts around a stated v_s
+LEVEL_GRID = (1.0, 1.5, 2.0)  # starts: x the current breakaway level
+
+
+def stated(theta: dict[str, float]) -> bool:
+    """Whether ``theta`` carries a Stribeck drop (breakaway above Coulomb)."""
+    return theta["breakaway"] > theta["coulomb"]
+
+
+class StribeckFriction(Effect):
+    name = "stribeck_friction"
+    description = "friction falling from the static to the Coulomb level with velocity"
+    params = (
+        Param("breakaway", "N·m", "N", "static (breakaway) friction level F_s", neutral=None,
+              fields={"testbed": "friction.breakaway_torque_nm", "hinge": "friction.breakaway",
+                      "slide": "friction.breakaway"}, valid=(0.0, 1e4)),
+        Param("stribeck_velocity", "rad/s", "m/s", "Stribeck velocity v_s", neutral=None, default=1.0,
+              fields={"testbed": "friction.stribeck_velocity_rad_s", "hinge": "friction.stribeck_velocity",
+                      "slide": "friction.stribeck_velocity"}, valid=(0.0, 1e3)))
+    signature = "low-speed sign (Stribeck)"
+    order = 12
+
+    def present(self, theta):
+        return stated(theta)
+
+    def bounds(self, key, scale, theta):
+        if key == "breakaway":
+            return theta["coulomb"], MAX_LEVEL_OF_EFFORT * scale.effort
+        return LOW_SPEED_RANGE[0] * scale.velocity, scale.velocity
+
+    def starts(self, model, theta):
+        if stated(model.scale.baseline):
+            velocities = [theta["stribeck_velocity"] * f for f in VELOCITY_GRID]
+        else:
+            low, high = LOW_SPEED_RANGE
+            velocities = list(model.scale.velocity * np.geomspace(3 * low, high, 5))
+        level = max(theta["breakaway"], theta["coulomb"], 1e-12)
+        return [{"stribeck_velocity": v, "breakaway": level * g} for v in velocities for g in LEVEL_GRID], ()
+
+    def identifiable(self, model, theta):
+        why = needs_sliding(model)
+        if why:
+            return why
+        v = np.abs(model.data.velocity)
+        if stated(model.scale.baseline):
+            vs = theta["stribeck_velocity"]
+            low, high = vs / 3, 3 * vs
+        else:
+            low, high = model.stick_velocity, LOW_SPEED_RANGE[1] * model.scale.velocity
+        fraction = float(((v > low) & (v < high)).mean())
+        if fraction < MIN_LOW_SPEED_FRACTION:
+            return (f"only {100 * fraction:.1f} % of the samples slide between {low:.3g} and {high:.3g} "
+                    f"(needs {100 * MIN_LOW_SPEED_FRACTION:g} %)")
+        return None
+
+    def signature_signal(self, model, theta):
+        v = model.data.velocity
+        vs = theta["stribeck_velocity"] if stated(model.scale.baseline) else 0.1 * model.scale.velocity
+        return np.sign(v) * np.exp(-(v / vs) ** 2)
+
+    def draw(self, rig, rng):
+        if rig.model != "testbed":
+            coulomb = rig.rigid["coulomb"]
+            low, high = RIGID_STRIBECK_VELOCITY[rig.joint]
+            return {"breakaway": coulomb * float(rng.uniform(*BREAKAWAY_UP)),
+                    "stribeck_velocity": float(math.exp(rng.uniform(math.log(low), math.log(high))))}
+        fr = rig.params.friction
+        return {"breakaway": fr.breakaway_torque_nm * float(rng.uniform(*BREAKAWAY_UP)),
+                "stribeck_velocity": fr.stribeck_velocity_rad_s * float(rng.uniform(*STRIBECK_VELOCITY_SPAN))}
+
+
+EFFECT = StribeckFriction()

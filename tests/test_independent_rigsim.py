@@ -213,3 +213,18 @@ def test_pid_tracks_the_reference_and_runs_are_deterministic():
     assert np.array_equal(runs[0].q, runs[1].q) and np.array_equal(runs[0].tau_cmd, runs[1].tau_cmd)
     error = ref.position[1:] - runs[0].q[:-1]
     assert np.sqrt(np.mean(error**2)) < 0.02 * np.ptp(ref.position)
+
+
+def test_battery_writes_a_log_rig_and_truth_the_project_reads(tmp_path):
+    from sim.discrepancy.rig import load_rig
+    from sim.logio import read_log
+    from tests.independent.battery import cases, write_case
+
+    chosen = {c.name: c for c in cases()}
+    assert len(chosen) == len(cases())
+    for name in ("gravity-slide-multisine-s133", "emps-estimation"):
+        truth = write_case(chosen[name], tmp_path, 2.0)
+        log = read_log(tmp_path / name / "log.csv", joint=truth["joint"])
+        rig = load_rig(tmp_path / name / "rig.toml")
+        assert len(log) == 2000 and rig.joint == "slide"
+        assert truth["hidden"][0]["effect"] in ("gravity", "coulomb_friction")

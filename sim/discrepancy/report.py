@@ -16,11 +16,16 @@ Y_MARGIN = 0.15  # ... plus this share of the range each way
 MAX_LAG_S = 0.5  # autocorrelation figure: lags up to this [s]
 
 
-def _value(entry: dict, joint_unit: str = "") -> str:
-    text = f"{entry['value']:.5g} {entry.get('unit', joint_unit)}".rstrip()
+def _value(entry: dict) -> str:
+    """'value unit (rig ..., fit range [low, high])'."""
+    text = f"{entry['value']:.5g} {entry['unit']}".rstrip()
+    notes = []
     if "baseline" in entry:
-        text += f" (rig {entry['baseline']:.5g})"
-    return text
+        notes.append(f"rig {entry['baseline']:.5g}")
+    if "bounds" in entry:
+        low, high = entry["bounds"]
+        notes.append(f"fit range [{low:.4g}, {high:.4g}]")
+    return text + (f" ({'; '.join(notes)})" if notes else "")
 
 
 def format_result(result: DiscrepancyResult) -> str:

@@ -387,6 +387,15 @@ def rig_toml(rig: dict, header: str) -> str:
         "[friction]", f"coulomb = {rig['coulomb']!r}  # {unit[0]}", f"viscous = {rig['viscous']!r}  # {unit[1]}", ""])
 
 
+def as_log_and_rig(run: Run, rig: dict, joint: str):
+    """The case's log and the project's rig description of ``rig``, in memory (RunLog, Rig)."""
+    import tomllib
+
+    from sim.discrepancy.rig import rig_from_dict
+
+    return run.to_log(), rig_from_dict(tomllib.loads(rig_toml(rig, "battery case")), source=f"battery {joint} rig")
+
+
 def write_case(case: Case, out: Path, duration_s: float) -> dict:
     """Simulate ``case`` and write its log, rig and truth under ``out/<case>``; returns the truth."""
     from sim.logio import write_log
@@ -436,8 +445,11 @@ def _error(truth: dict[str, float], found: dict[str, float]) -> tuple[float | No
     return (max(relative) if relative else None), errors
 
 
-def judge(truth: dict, findings: list[dict], library: set[str], tolerance: float = 0.2) -> dict:
-    """Compare the findings with the truth: verdict, the first finding's matched effect and errors."""
+def judge(truth: dict, findings: list[dict], library: set[str], verdict_text: str = "",
+          tolerance: float = 0.2) -> dict:
+    """Compare the findings (and the analysis's verdict) with the truth: verdict, the first finding's matched
+    effect and errors. A clean log must end with no finding and not 'unexplained'; an outside-library effect
+    with no finding and 'unexplained'."""
     names = [f["effect"] for f in findings]
     first = findings[0] if findings else None
     row = {"found": names, "first": None, "first_values": {}, "first_error": None, "errors": {}, "gain": None}
@@ -445,11 +457,13 @@ def judge(truth: dict, findings: list[dict], library: set[str], tolerance: float
         row["first_values"] = {k: v["value"] for k, v in first["parameters"].items()}
         row["gain"] = first["gain"]
     kind = truth["kind"]
+    unexplained = "unexplained" in verdict_text
     if kind == "clean":
-        row["verdict"] = "ok (nothing found)" if not names else "SPURIOUS"
+        row["verdict"] = ("SPURIOUS" if names else "SPURIOUS (unexplained)" if unexplained else "ok (nothing found)")
         return row
     if kind == "outside":
-        row["verdict"] = "ok (unexplained)" if not names else "WRONG NAME (outside-library effect named)"
+        row["verdict"] = ("WRONG NAME (outside-library effect named)" if names else
+                          "ok (unexplained)" if unexplained else "MISSED (no finding, not unexplained)")
         return row
     targets = {}
     for h in truth["hidden"]:
@@ -483,10 +497,13 @@ def analyse_case(folder: Path, workers: int = 1) -> dict:
     try:
         result = run_analysis(folder / "log.csv", folder / "rig.toml", truth["joint"], workers)
         findings = [f.to_dict() for f in result.findings]
+        analysis = {"verdict": result.verdict, "unexplained": result.structure.description,
+                    "rejected": result.rejected, "logs": result.logs}
         error = None
     except Exception as err:  # a case the analysis refuses is a result too
-        findings, error = [], f"{type(err).__name__}: {err}"
-    row = judge(truth, findings, _current_library())
+        findings, error, analysis = [], f"{type(err).__name__}: {err}", {}
+    row = judge(truth, findings, _current_library(), analysis.get("verdict", ""))
+    row["analysis"] = analysis
     row.update(case=truth["case"], kind=truth["kind"], hidden=[h["effect"] for h in truth["hidden"]],
                truth={h["effect"]: h["parameters"] for h in truth["hidden"]}, seconds=time.perf_counter() - t0,
                error=error, findings=findings)
@@ -527,7 +544,11 @@ def summarise(rows: list[dict]) -> dict:
             lambda r: single(r) and r["hidden"][0] in library, lambda r: r["verdict"] == "right"),
         "in_library_named_first (any value)": count(single, lambda r: r["first"] is not None),
         "clean_logs_with_a_finding": count(lambda r: r["kind"] == "clean", lambda r: bool(r["found"])),
+        "clean_logs_called_unexplained": count(lambda r: r["kind"] == "clean",
+                                               lambda r: r["verdict"] == "SPURIOUS (unexplained)"),
         "outside_library_with_a_confident_name": count(lambda r: r["kind"] == "outside", lambda r: bool(r["found"])),
+        "outside_library_unexplained": count(lambda r: r["kind"] == "outside",
+                                             lambda r: r["verdict"] == "ok (unexplained)"),
         "misspecified_named_right": count(lambda r: r["kind"] == "misspecified", lambda r: r["verdict"] == "right"),
         "pairs_first_right": count(lambda r: r["kind"] == "pair", lambda r: r["verdict"].startswith("right")),
         "errors": count(lambda r: True, lambda r: r["verdict"] == "ERROR"),

@@ -1,8 +1,11 @@
 """Cogging: a position-periodic effort of the motor's magnets, ``A·sin(2π·x/P + φ)`` (x the motor-side position).
 
 On the testbed the candidate periods are those of a motor with an integer number of poles, ``2π/(N·poles)`` of the
-output angle (N the gear ratio); on a rigid joint a log-spaced grid from 20 encoder steps to the position span.
-The fit screens every period (amplitude and phase are a linear sub-problem for each) and refines the best.
+output angle (N the gear ratio), and the period is held at the screened one; on a rigid joint a log-spaced grid
+from 20 encoder steps to a third of the position span, and the fit refines the period too. The screen solves
+amplitude and phase (a linear sub-problem) for every period: on the testbed with the filtered term, on a rigid
+joint (hundreds of periods) with the term of the analysis grid's filtered position, unfiltered (exact while the
+term stays below the analysis band); the fit itself uses the filtered term.
 """
 
 from __future__ import annotations
@@ -11,11 +14,12 @@ import math
 
 import numpy as np
 
-from sim.discrepancy.effects.base import TWO_PI, Effect, Param, Realisation, correlation, wrap_angle
+from sim.discrepancy.effects.base import TWO_PI, Effect, Param, Realisation, wrap_angle
 
 MIN_PERIODS_IN_RANGE = 3  # a period must fit at least 3 times in the position range
 MAX_POLES = 60  # the testbed: pole counts tried, 1..60
-RIGID_PERIOD_GRID = 300  # a rigid joint: log-spaced periods tried
+RIGID_PERIOD_GRID = 600  # a rigid joint: log-spaced periods screened
+SCREENED = 3  # a rigid joint: the best screened periods each start a fit
 MIN_PERIOD_STEPS = 20  # a rigid joint: the shortest period tried, in encoder steps
 TESTBED_AMPLITUDE_NM, TESTBED_POLES = (0.02, 0.05), (10, 30)  # synthetic draws (8:1 gear)
 RIGID_AMPLITUDE_OF_COULOMB = (0.3, 0.6)  # synthetic draws: x the rig's Coulomb level
@@ -28,8 +32,8 @@ def candidate_periods(model, position_span: float) -> np.ndarray:
         periods = TWO_PI / (model.const["gear_ratio"] * np.arange(1, MAX_POLES + 1))
     else:
         resolution = max(model.data.position_resolution, 1e-9)
-        periods = np.geomspace(max(MIN_PERIOD_STEPS * resolution, 1e-6), max(position_span, 1e-6),
-                               RIGID_PERIOD_GRID)
+        periods = np.geomspace(max(MIN_PERIOD_STEPS * resolution, 1e-6),
+                               max(position_span / MIN_PERIODS_IN_RANGE, 1e-6), RIGID_PERIOD_GRID)
     return periods[periods * MIN_PERIODS_IN_RANGE <= position_span]
 
 
@@ -72,20 +76,33 @@ class Cogging(Effect):
         phi = theta["cogging_phase"]
         return -amplitude * (math.cos(phi) * s + math.sin(phi) * c)  # the magnets push: the joint needs less
 
-    def starts(self, model, theta):
-        r = model.residuals(theta)["effort"]
-        ok = model.data.fit & np.isfinite(r)
-        span = float(np.ptp(model.data.position[ok])) if ok.any() else 0.0
-        best = None
+    def screen(self, model, residual: np.ndarray, mask: np.ndarray) -> list[tuple[float, dict[str, float]]]:
+        """(share of the residual's variance explained, start) for every candidate period, best first: the
+        linear fit of amplitude and phase on the grid's position (unfiltered term)."""
+        ok = mask & np.isfinite(residual)
+        if ok.sum() < 8:
+            return []
+        span = float(np.ptp(model.data.position[ok]))
+        x, r = model.data.position[ok], residual[ok]
+        total = float(np.sum((r - r.mean()) ** 2))
+        out = []
         for period in candidate_periods(model, span):
-            s, c = self.basis(model, float(period))
-            a = np.column_stack([s[ok], c[ok]])
-            coef, *_ = np.linalg.lstsq(a, -r[ok], rcond=None)  # residual - load = 0
-            explained = float(np.sum((a @ coef) ** 2))
-            if best is None or explained > best[0]:
-                best = (explained, {"cogging_amplitude": float(math.hypot(*coef)), "cogging_period": float(period),
-                                    "cogging_phase": float(math.atan2(coef[1], coef[0]))})
-        return ([best[1]] if best else []), ("cogging_period",)
+            if model.testbed:  # a few integer pole counts: the filtered term itself
+                a = np.column_stack([b[ok] for b in self.basis(model, float(period))])
+            else:
+                phase = TWO_PI * x / period
+                a = np.column_stack([np.sin(phase), np.cos(phase)])
+            coef, *_ = np.linalg.lstsq(a, -r, rcond=None)  # residual - load = 0
+            explained = float(np.sum((a @ coef) ** 2)) / total if total > 0 else 0.0
+            out.append((explained, {"cogging_amplitude": float(math.hypot(*coef)), "cogging_period": float(period),
+                                    "cogging_phase": float(math.atan2(coef[1], coef[0]))}))
+        return sorted(out, key=lambda e: -e[0])
+
+    def starts(self, model, theta):
+        screened = self.screen(model, model.residuals(theta)["effort"], model.data.fit)
+        if model.testbed:
+            return [s for _, s in screened[:1]], ("cogging_period",)
+        return [s for _, s in screened[:SCREENED]], ()
 
     def identifiable(self, model, theta):
         span = float(np.ptp(model.data.position))
@@ -94,11 +111,8 @@ class Cogging(Effect):
         return None
 
     def evidence(self, model, theta, residual, mask):
-        best = 0.0
-        for period in candidate_periods(model, float(np.ptp(model.data.position))):
-            s, c = self.basis(model, float(period))
-            best = max(best, math.hypot(correlation(residual[mask], s[mask]), correlation(residual[mask], c[mask])))
-        return best
+        screened = self.screen(model, residual, mask)
+        return math.sqrt(screened[0][0]) if screened else None
 
     def realise(self, values, rig):
         amplitude, period, phase = values["cogging_amplitude"], values["cogging_period"], values["cogging_phase"]

@@ -19,8 +19,9 @@ Channels (each a residual = measured - model, filtered, NaN where a sample does 
     step) plus load-dependent dry friction ``μ·|τ_trans|`` (while stuck: at the band's edge against the motion
     on samples where the motor encoder moved, any value within ``±μ|τ_trans|`` where it did not);
     ``τ_trans`` = load-cell torque + lever inertia + lever loads (gravity), or the sensor where nothing else
-    measures it. A rigid joint uses a static Stribeck curve while sliding and a stick band of ``±F_s`` while
-    stuck, and its samples near a stick-slip transition do not count.
+    measures it. A rigid joint uses a static Stribeck curve of the velocity while sliding (evaluated at the log's
+    rate, then filtered) and a stick band of ``±F_s`` while stuck, and its samples near a stick-slip transition
+    do not count.
 ``sensor`` [N·m]
     Torque sensor against the transmitted torque: ``τ_s = τ_trans + Σ effect sensor terms`` (offset, gain,
     drift, hysteresis).
@@ -286,8 +287,15 @@ class Surrogate:
                 return d.filt(sigma0 * z + sigma1 * np.gradient(z, d.dt))
 
             return self.memo("friction", (fc, fs, vs, theta["presliding_stiffness"]), compute)
-        v = d.velocity
-        return np.sign(v) * stribeck_level(v, fc, fs, vs)
+
+        def static_curve() -> np.ndarray:
+            # the curve of the full-rate velocity, then filtered like every other term of the balance: the
+            # Stribeck hump and the sign change at a reversal last a few milliseconds, which the filter smears
+            # over ~1/f_c in the logged effort; the curve of the filtered velocity would keep them sharp
+            v = d.velocity_full
+            return d.filt(np.sign(v) * stribeck_level(v, fc, fs, vs))
+
+        return self.memo("friction", (fc, fs, vs), static_curve)
 
     def loads(self, theta: dict[str, float]) -> np.ndarray | float:
         """Effort the joint needs for the effects' loads, on the grid [N·m | N]."""

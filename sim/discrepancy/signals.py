@@ -135,6 +135,7 @@ class Prepared:
     u_full: np.ndarray  # logged effort command [N·m | N]
     position_full: np.ndarray  # motor-side position, raw [rad | m]
     step_velocity: np.ndarray  # backward difference of position, full rate [rad/s | m/s]
+    velocity_full: np.ndarray  # filtered motor-side velocity, full rate [rad/s | m/s]
     acceleration_full: np.ndarray  # filtered motor-side acceleration, full rate [rad/s² | m/s²]
     t: np.ndarray  # grid time [s]
     u: np.ndarray  # command on the grid, raw [N·m | N]
@@ -271,7 +272,7 @@ def prepare(log: RunLog, rig: Rig, config: AnalysisConfig, *, segments: list[Seg
     split = min(segments[0][0] + int(round(segments[0][2] * (segments[0][1] - segments[0][0]))), n - 1)
     u = np.asarray(cols["tau_cmd"], dtype=float)
     return Prepared(t_full=t, dt=dt, grid=grid, u_full=u, position_full=position, step_velocity=step_velocity,
-                    acceleration_full=acceleration, t=t[grid], u=u[grid], position=pos_f[grid],
+                    velocity_full=velocity, acceleration_full=acceleration, t=t[grid], u=u[grid], position=pos_f[grid],
                     velocity=velocity[grid], acceleration=acceleration[grid], q=q, lever_acceleration=lever_acc,
                     tau_loadcell=tau_lc, tau_sensor=tau_s, temperature=temperature, fit=fit, held=held,
                     split_time=float(t[split]), sos=sos, load_source=load_source,

@@ -89,12 +89,14 @@ def main(argv: list[str] | None = None) -> None:
         rig = load_rig(args.rig)
     except RigError as exc:
         parser.error(str(exc))
-    if args.save_rig is not None and args.save_rig.exists():
-        parser.error(f"--save-rig {args.save_rig} exists; choose a new file (inputs are never overwritten)")
+    except OSError as exc:  # a directory, no permission
+        parser.error(f"rig file {args.rig} cannot be read: {exc.strerror or exc}")
     try:
         log = read_log(args.log, joint=rig.joint)
     except (LogError, FileNotFoundError) as exc:
         parser.error(f"{args.log}: {exc}")
+    except OSError as exc:
+        parser.error(f"{args.log} cannot be read: {exc.strerror or exc}")
     try:
         result = analyse(log, rig, AnalysisConfig(workers=args.workers), progress=True,
                          replay=not args.no_replay)
@@ -105,6 +107,7 @@ def main(argv: list[str] | None = None) -> None:
     if args.save_rig:
         header = (f"Extended rig written by experiments.discrepancy from {args.log.name} and {args.rig.name}.\n"
                   f"Findings: {', '.join(result.found) or 'none'}.")
+        args.save_rig.parent.mkdir(parents=True, exist_ok=True)
         print(f"wrote {save_rig(result.extended_rig, args.save_rig, header=header)}")
     name = run_name(args.log)
     record_rerun(args, lambda: {name: measured_run(log, rig)}, rig.params,

@@ -2,30 +2,48 @@
 discrepancy analysis without a rig of one's own.
 
     python -m experiments.discrepancy_demo [--effect NAME] [--experiment NAME] [--seed N] [--duration S]
-                                           [--out DIR]
+                                           [--out DIR] [--no-plot]
 
 The log comes from the MuJoCo testbed (or the rigid slide) with ``--effect`` hidden at a value drawn from its
 realistic range with ``--seed`` (``sim.discrepancy.synth``); the rig file is the baseline, without the effect,
 which is what the analysis is told. The command prints the hidden value and the command that analyses the pair;
 ``python -m experiments.discrepancy`` should name the effect and recover the value. Existing files are not
-replaced.
+replaced. A --duration shorter than the analysis accepts (:func:`shortest_analysable_duration_s`) is refused
+before anything is simulated. The command draws no figures (--no-plot is accepted, as by every experiment).
 """
 
 from __future__ import annotations
 
+import math
 import shlex
 import sys
 from pathlib import Path
 
-from experiments.common import cli_parser, run_seconds, seed_arg
+from experiments.common import MAX_DURATION_S, add_no_figures_arg, check_output_paths, cli_parser, run_seconds, seed_arg
 from sim.discrepancy.effects import EFFECTS, TESTBED_ONLY
 from sim.discrepancy.rig import save_rig
+from sim.discrepancy.signals import AnalysisConfig
 from sim.discrepancy.synth import (EXPERIMENTS, FINE_MOTOR_ENCODER_COUNTS, MOTOR_ENCODER_COUNTS, REVEALING_EXPERIMENT,
                                    hidden_effect_log)
 from sim.logio import write_log
 
 DEFAULT_EFFECT = "coulomb_friction"
 DEFAULT_DURATION_S = 10.0  # [s] the length the hidden-effect sweep recovers every effect from
+LOG_SAMPLE_PERIOD_S = 1e-3  # [s] the synthetic logs hold one sample per 1 ms control tick (sim.discrepancy.synth)
+EXTRA_SAMPLES = 20  # samples the analysis asks for beyond its filter guards (sim.discrepancy.signals.prepare)
+
+
+def shortest_analysable_samples(config: AnalysisConfig | None = None) -> int:
+    """The fewest samples of a 1 kHz log the discrepancy analysis accepts: four times its filter guards at both
+    ends of the fit and held-out parts, 4 x 2 ``config.guard_s``, plus 20 (the rule of
+    :func:`sim.discrepancy.signals.prepare`; ``AnalysisConfig()`` if None)."""
+    guard_s = (config or AnalysisConfig()).guard_s
+    return math.ceil(8.0 * guard_s / LOG_SAMPLE_PERIOD_S - 1e-9) + EXTRA_SAMPLES
+
+
+def shortest_analysable_duration_s(config: AnalysisConfig | None = None) -> float:
+    """The shortest demo log [s] the discrepancy analysis accepts (:func:`shortest_analysable_samples`)."""
+    return shortest_analysable_samples(config) * LOG_SAMPLE_PERIOD_S
 
 
 def main(argv: list[str] | None = None) -> None:
@@ -39,7 +57,15 @@ def main(argv: list[str] | None = None) -> None:
                         help=f"log length (default {DEFAULT_DURATION_S:g} s)")
     parser.add_argument("--out", type=Path, default=Path("out"), metavar="DIR",
                         help="directory of demo_log.csv and demo_rig.toml (default out/)")
+    add_no_figures_arg(parser)
     args = parser.parse_args(argv)
+    check_output_paths(parser, args)
+    if round(args.duration / LOG_SAMPLE_PERIOD_S) < shortest_analysable_samples():
+        shortest, guard_s = shortest_analysable_duration_s(), AnalysisConfig().guard_s
+        parser.error(f"--duration {args.duration:g} s: the analysis needs a log of at least {shortest:g} s "
+                     f"({shortest_analysable_samples()} samples at 1 kHz: four times its filter guards of "
+                     f"{guard_s:g} s at both ends of the fit and held-out parts, plus {EXTRA_SAMPLES}); valid range "
+                     f"[{shortest:g}, {MAX_DURATION_S:g}] s")
     experiment = args.experiment or REVEALING_EXPERIMENT[args.effect]
     spec = EFFECTS[args.effect]
     if experiment == "slide" and (spec.rigs == TESTBED_ONLY or spec.channel == "sensor"):

@@ -13,7 +13,7 @@ from typing import Any
 
 import numpy as np
 
-from models.gim8108_testbed.build import build_xml
+from models.gim8108_testbed.build import build_xml, check_time_constants
 from models.gim8108_testbed.derived import FIXTURES
 from sensor.calibration import InfeasibleCalibrationError
 from sensor.photoreflector import check_params as check_sensor_params
@@ -35,22 +35,28 @@ def load_params_arg(parser: argparse.ArgumentParser, args: argparse.Namespace, c
                     uses_sensor: bool = True) -> TestbedParams:
     """Load --params and check the output flags, before anything runs.
 
-    A bad file, or a parameter set the testbed's model cannot be built from (a constraint between fields), or
-    one that the sensor cannot be read or calibrated with (``sensor.photoreflector.check_params``, unless
-    ``uses_sensor`` is False) or that a callable of ``checks`` (``check(params)``, raising ParameterError)
-    refuses for this experiment, becomes a command-line error that names the field; so does a --json or --plot
-    that cannot be written or that names the --params file (inputs are never overwritten).
+    A bad file, a parameter set the testbed's model cannot be built from (a constraint between fields, such as
+    solver time constants the physics step of a fixture cannot resolve: the message names the fields the file
+    changed that lengthen the step, and what to set in the file), one that the sensor cannot be read or
+    calibrated with (``sensor.photoreflector.check_params``, unless ``uses_sensor`` is False) or one that a
+    callable of ``checks`` (``check(params)``, raising ParameterError) refuses for this experiment becomes a
+    command-line error that names the file and the field; so does an output that cannot be written or that
+    names the --params file (``check_output_paths``).
     """
     checks = (*checks, check_sensor_params) if uses_sensor else tuple(checks)
     check_output_paths(parser, args, inputs=(args.params,))
     try:
-        params = load_params(args.params)
+        params = load_params(args.params)  # its errors name the file
+    except ParameterError as exc:
+        parser.error(str(exc))
+    try:
+        check_time_constants(params, FIXTURES, source=args.params)
         for fixture in FIXTURES:
             build_xml(params, fixture)
         for check in checks:
             check(params)
     except ParameterError as exc:
-        parser.error(str(exc))
+        parser.error(f"{args.params}: {exc}" if args.params is not None else str(exc))
     return params
 
 

@@ -1,6 +1,7 @@
 """Every closed-loop experiment's command line runs in its short mode and writes what it promises; bad input is a
 usage error before anything runs."""
 
+import argparse
 import json
 import os
 import subprocess
@@ -8,6 +9,8 @@ import sys
 from pathlib import Path
 
 import pytest
+
+from sim.params import TestbedParams
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -126,15 +129,6 @@ def test_outputs_that_would_overwrite_an_input_or_cannot_be_written_are_refused_
         assert result.returncode == 2 and message in result.stderr, result.stderr
         assert "running" not in result.stderr  # refused before the simulation started
     assert params.read_text() == "[friction]\nbreakaway_torque_nm = 0.14\n" and a_file.read_text() == "keep"
-
-
-def test_a_parameter_set_the_model_cannot_be_built_from_is_a_usage_error_naming_the_field(tmp_path):
-    """A gear ratio whose physics step outgrows the backlash stops' time constant names that field and its range."""
-    params = tmp_path / "rig.toml"
-    params.write_text("[motor]\ngear_ratio = 36\n")
-    result = run("experiments.step", "--duration", "0.05", "--params", str(params))
-    assert result.returncode == 2 and "Traceback" not in result.stderr
-    assert "backlash.stop_time_constant_s = 0.000125 s is below two physics steps; valid range" in result.stderr
 
 
 @pytest.mark.parametrize("module,what", [("experiments.discrepancy", "replay"),
@@ -289,3 +283,27 @@ def test_identify_defaults_says_a_short_run_is_short_before_its_ranking(monkeypa
     identify_defaults.main(["--duration", "0.05"])
     out = capsys.readouterr().out
     assert out.index("SHORT RUN (--duration 0.05 s)") < out.index("rank") < out.index("best:")
+
+
+def test_a_gear_ratio_the_defaults_cannot_simulate_names_it_the_file_and_the_values_to_set(tmp_path, capsys):
+    """A file setting only motor.gear_ratio = 36 lengthens the physics step past what the default solver time
+    constants resolve: the error names the file, the field it set, both time constants and the value they need
+    over both fixtures; the file amended as the message says is accepted."""
+    from experiments import step
+    from experiments.common import load_params_arg
+    from models.gim8108_testbed.derived import physics_timestep
+
+    path = tmp_path / "my_rig.toml"
+    path.write_text("[motor]\ngear_ratio = 36\n")
+    err = " ".join(usage_error(step.main, ["--duration", "0.05", "--params", str(path)], capsys).split())
+    params = TestbedParams().replace(motor={"gear_ratio": 36.0})
+    needed = 2.0 * max(physics_timestep(params, fixture)[0] for fixture in ("locked", "free"))
+    assert f"{path}: motor.gear_ratio = 36 (default 8)" in err
+    for field in ("backlash.stop_time_constant_s = 0.000125 s", "friction.load_friction_time_constant_s = 0.000125 s"):
+        assert field in err
+    suggested = float(err.split("stop_time_constant_s = ")[-1].split()[0])
+    assert needed <= suggested < 1.01 * needed and f"valid range [{suggested:g}, 1] s" in err
+    path.write_text(f"[motor]\ngear_ratio = 36\n[backlash]\nstop_time_constant_s = {suggested:g}\n"
+                    f"[friction]\nload_friction_time_constant_s = {suggested:g}\n")
+    args = argparse.Namespace(params=path, json=None, plot=None)
+    assert load_params_arg(argparse.ArgumentParser(), args).motor.gear_ratio == 36.0

@@ -3,6 +3,7 @@ tick, the loop the experiments run (:func:`controllers.loop.run_torque_loop`) op
 
 from __future__ import annotations
 
+import math
 from typing import Any
 
 import gymnasium as gym
@@ -48,7 +49,9 @@ class TorqueTrackingEnv(gym.Env):
     | 0 | motor torque command, output side | -limit | limit | N·m |
 
     Actions outside the box are clipped to it (the driver's limit; with domain randomisation, to the episode's
-    motor's own limit where that is lower).
+    motor's own limit where that is lower). An action that is not of shape (1,) or not finite (NaN, ±inf)
+    raises a ``ValueError`` before the plant moves (as Gymnasium's MuJoCo environments refuse an action of the
+    wrong shape); the episode can go on with a valid action.
 
     ## Observation Space
     ``Box(-inf, inf, (6,), float64)``: what the controller of the real rig can read at the start of a tick.
@@ -87,7 +90,8 @@ class TorqueTrackingEnv(gym.Env):
     ## Episode End
     Truncation after ``episode_duration_s`` (default 2 s = 2000 steps). Termination only if the physics
     diverges (:class:`sim.plant.SimulationDiverged`; not expected within the parameters' valid ranges), with
-    ``info["diverged"] = True``.
+    ``info["diverged"] = True`` and ``info["message"]`` saying why (MuJoCo's own warning included; MuJoCo
+    writes no log file, see :mod:`sim.plant`).
 
     ## Arguments
     ``gymnasium.make("torquebed/TorqueTracking-v0", **kwargs)`` after ``import sim`` (or
@@ -205,10 +209,23 @@ class TorqueTrackingEnv(gym.Env):
     # ------------------------------------------------------------------ helpers
     @staticmethod
     def _action_value(action) -> float:
-        """The commanded torque [N·m] of an action (its first element, as a Python float)."""
-        if type(action) is np.ndarray and action.dtype.kind == "f":  # the usual case, without a conversion
-            return float(action.item(0))
-        return float(np.asarray(action, dtype=float).reshape(-1)[0])
+        """The commanded torque [N·m] of an action of shape (1,), as a Python float.
+
+        Raises
+        ------
+        ValueError
+            If the action is not of shape (1,) or its value is not finite.
+        """
+        if not (type(action) is np.ndarray and action.dtype.kind == "f"):  # the usual case needs no conversion
+            action = np.asarray(action, dtype=float)
+        if action.shape != (1,):
+            raise ValueError(f"action of shape {action.shape}: expected shape (1,), the action space's "
+                             f"(one motor torque command [N·m])")
+        value = float(action.item(0))
+        if not math.isfinite(value):
+            raise ValueError(f"action {value}: expected a finite torque command [N·m] (commands outside the "
+                             f"action space are clipped to it; NaN and ±inf are refused)")
+        return value
 
     def _draw_loadcell_noise(self, rng: np.random.Generator) -> list[float] | None:
         """The load cell's reading noise of every step of the episode [N·m] (None when it has none).

@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 import json
 import math
+import os
 import tempfile
 from contextlib import contextmanager
 from pathlib import Path
@@ -12,7 +13,7 @@ from typing import Any
 
 import numpy as np
 
-from models.gim8108_testbed.build import build_xml
+from models.gim8108_testbed.build import build_xml, check_time_constants
 from models.gim8108_testbed.derived import FIXTURES
 from sensor.calibration import InfeasibleCalibrationError
 from sensor.photoreflector import check_params as check_sensor_params
@@ -34,22 +35,28 @@ def load_params_arg(parser: argparse.ArgumentParser, args: argparse.Namespace, c
                     uses_sensor: bool = True) -> TestbedParams:
     """Load --params and check the output flags, before anything runs.
 
-    A bad file, or a parameter set the testbed's model cannot be built from (a constraint between fields), or
-    one that the sensor cannot be read or calibrated with (``sensor.photoreflector.check_params``, unless
-    ``uses_sensor`` is False) or that a callable of ``checks`` (``check(params)``, raising ParameterError)
-    refuses for this experiment, becomes a command-line error that names the field; so does a --json or --plot
-    that cannot be written or that names the --params file (inputs are never overwritten).
+    A bad file, a parameter set the testbed's model cannot be built from (a constraint between fields, such as
+    solver time constants the physics step of a fixture cannot resolve: the message names the fields the file
+    changed that lengthen the step, and what to set in the file), one that the sensor cannot be read or
+    calibrated with (``sensor.photoreflector.check_params``, unless ``uses_sensor`` is False) or one that a
+    callable of ``checks`` (``check(params)``, raising ParameterError) refuses for this experiment becomes a
+    command-line error that names the file and the field; so does an output that cannot be written or that
+    names the --params file (``check_output_paths``).
     """
     checks = (*checks, check_sensor_params) if uses_sensor else tuple(checks)
     check_output_paths(parser, args, inputs=(args.params,))
     try:
-        params = load_params(args.params)
+        params = load_params(args.params)  # its errors name the file
+    except ParameterError as exc:
+        parser.error(str(exc))
+    try:
+        check_time_constants(params, FIXTURES, source=args.params)
         for fixture in FIXTURES:
             build_xml(params, fixture)
         for check in checks:
             check(params)
     except ParameterError as exc:
-        parser.error(str(exc))
+        parser.error(f"{args.params}: {exc}" if args.params is not None else str(exc))
     return params
 
 
@@ -66,23 +73,46 @@ def run_errors(parser: argparse.ArgumentParser):
                      f"the optical curvature fractions")
 
 
+OUTPUT_FILE_FLAGS = ("json", "rerun", "save_rig")  # flags naming a file a run writes
+RERUN_SUFFIX = ".rrd"  # the rerun viewer opens a recording by this suffix
+
+
 def check_output_paths(parser: argparse.ArgumentParser, args: argparse.Namespace, inputs=()) -> None:
-    """Refuse, before any simulation, a --json or --plot that cannot be written, or a --json, --rerun or
-    --save-rig that is one of ``inputs`` (paths read by the run; None entries are ignored)."""
+    """Refuse, before any simulation, an output the run could not write at its end.
+
+    Checked: --json, --rerun and --save-rig name a file (not a directory, not one of ``inputs``, the paths read
+    by the run, None entries ignored; not the same file as another of them) in a directory that exists or can
+    be created, and is writable; --rerun ends in .rrd; --save-rig does not exist yet (it is never replaced);
+    --plot and --out (a directory of outputs) are directories or can be created, and are writable.
+    """
     read = {Path(p).resolve() for p in inputs if p is not None}
-    for flag in ("json", "rerun", "save_rig"):
-        path = getattr(args, flag, None)
-        if path is not None and Path(path).resolve() in read:
-            parser.error(f"--{flag.replace('_', '-')} {path} is an input of this run; inputs are never overwritten")
-    json_path, plot_dir = getattr(args, "json", None), getattr(args, "plot", None)
-    if json_path is not None:
-        if json_path.is_dir():
-            parser.error(f"--json {json_path} is a directory; give a file name, e.g. {json_path / 'result.json'}")
-        _check_writable(parser, "--json", json_path.parent)
-    if plot_dir is not None:
-        if plot_dir.exists() and not plot_dir.is_dir():
-            parser.error(f"--plot {plot_dir} exists and is not a directory")
-        _check_writable(parser, "--plot", plot_dir)
+    files = {flag: Path(getattr(args, flag)) for flag in OUTPUT_FILE_FLAGS if getattr(args, flag, None) is not None}
+    named: dict[Path, str] = {}
+    for flag, path in files.items():
+        option = f"--{flag.replace('_', '-')}"
+        if path.resolve() in read:
+            parser.error(f"{option} {path} is an input of this run; inputs are never overwritten")
+        if path.resolve() in named:
+            parser.error(f"{named[path.resolve()]} and {option} name the same file, {path}; give each its own")
+        named[path.resolve()] = option
+        if path.is_dir():
+            example = path / ("result.json" if flag == "json" else "run.rrd" if flag == "rerun" else "rig.toml")
+            parser.error(f"{option} {path} is a directory; give a file name, e.g. {example}")
+        if flag == "rerun" and path.suffix != RERUN_SUFFIX:
+            parser.error(f"{option} {path}: a rerun recording is a {RERUN_SUFFIX} file (the viewer opens it by "
+                         f"that suffix); e.g. {path.with_suffix(RERUN_SUFFIX)}")
+        if flag == "save_rig" and path.exists():
+            parser.error(f"{option} {path} exists; choose a new file (an existing file is never replaced)")
+        _check_writable(parser, option, path.parent)
+        if path.exists() and not os.access(path, os.W_OK):
+            parser.error(f"{option} {path} exists and cannot be written")
+    for flag in ("plot", "out"):
+        directory = getattr(args, flag, None)
+        if directory is None:
+            continue
+        if directory.exists() and not directory.is_dir():
+            parser.error(f"--{flag} {directory} exists and is not a directory")
+        _check_writable(parser, f"--{flag}", directory)
 
 
 def _check_writable(parser: argparse.ArgumentParser, flag: str, directory: Path) -> None:
@@ -161,6 +191,12 @@ def add_output_args(parser: argparse.ArgumentParser, json_help: str = "write the
                         help="save PNG figures in DIR (default out/)")
     parser.add_argument("--no-plot", dest="plot", action="store_const", const=None,
                         help="save no figures")
+
+
+def add_no_figures_arg(parser: argparse.ArgumentParser) -> None:
+    """--no-plot for a command that draws no figures: accepted, as every experiment accepts it; changes nothing."""
+    parser.add_argument("--no-plot", dest="plot", action="store_const", const=None, default=None,
+                        help="accepted as by every experiment; this command draws no figures")
 
 
 # ---------------------------------------------------------------- rerun recordings (issue 5)

@@ -107,14 +107,16 @@ def main(argv: list[str] | None = None) -> None:
         rig = load_rig(args.rig)
     except RigError as exc:
         parser.error(str(exc))
-    if args.save_rig is not None and args.save_rig.exists():
-        parser.error(f"--save-rig {args.save_rig} exists; choose a new file (inputs are never overwritten)")
+    except OSError as exc:  # a directory, no permission
+        parser.error(f"rig file {args.rig} cannot be read: {exc.strerror or exc}")
     logs = []
     for path in paths:
         try:
             logs.append(read_log(path, joint=rig.joint, max_jitter=args.max_jitter))
         except (LogError, FileNotFoundError) as exc:
             parser.error(f"{path}: {exc}")
+        except OSError as exc:
+            parser.error(f"{path} cannot be read: {exc.strerror or exc}")
     n = len(args.log)
     try:
         result = analyse(logs[0], rig, AnalysisConfig(workers=args.workers), progress=True,
@@ -130,6 +132,7 @@ def main(argv: list[str] | None = None) -> None:
         header = (f"Extended rig written by experiments.discrepancy from {', '.join(p.name for p in paths)} and "
                   f"{args.rig.name}.\n"
                   f"Findings: {', '.join(result.found) or 'none'}.")
+        args.save_rig.parent.mkdir(parents=True, exist_ok=True)
         print(f"wrote {save_rig(result.extended_rig, args.save_rig, header=header)}")
     name = run_name(args.log[0])
     record_rerun(args, lambda: {name: measured_run(logs[0], rig)}, rig.params,

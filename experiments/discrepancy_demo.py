@@ -2,13 +2,14 @@
 discrepancy analysis without a rig of one's own.
 
     python -m experiments.discrepancy_demo [--effect NAME] [--experiment NAME] [--seed N] [--duration S]
-                                           [--out DIR]
+                                           [--out DIR] [--no-plot]
 
 The log comes from the MuJoCo testbed (or the rigid slide) with ``--effect`` hidden at a value drawn from its
 realistic range with ``--seed`` (``sim.discrepancy.synth``); the rig file is the baseline, without the effect,
 which is what the analysis is told. The command prints the hidden value and the command that analyses the pair;
 ``python -m experiments.discrepancy`` should name the effect and recover the value. Existing files are not
-replaced.
+replaced. A --duration shorter than the analysis accepts (:func:`shortest_analysable_duration_s`) is refused
+before anything is simulated. The command draws no figures (--no-plot is accepted, as by every experiment).
 """
 
 from __future__ import annotations
@@ -17,15 +18,22 @@ import shlex
 import sys
 from pathlib import Path
 
-from experiments.common import cli_parser, run_seconds, seed_arg
+from experiments.common import MAX_DURATION_S, add_no_figures_arg, check_output_paths, cli_parser, run_seconds, seed_arg
 from sim.discrepancy.effects import EFFECTS
 from sim.discrepancy.rig import save_rig
+from sim.discrepancy.signals import AnalysisConfig, minimum_samples
 from sim.discrepancy.synth import (EXPERIMENTS, FINE_MOTOR_ENCODER_COUNTS, MOTOR_ENCODER_COUNTS, REVEALING_EXPERIMENT,
                                    baseline_rig, hidden_effect_log)
 from sim.logio import write_log
 
 DEFAULT_EFFECT = "coulomb_friction"
 DEFAULT_DURATION_S = 10.0  # [s] the length the hidden-effect sweep recovers every effect from
+LOG_SAMPLE_PERIOD_S = 1e-3  # [s] the synthetic logs hold one sample per 1 ms control tick (sim.discrepancy.synth)
+
+
+def shortest_analysable_duration_s() -> float:
+    """The shortest demo log [s] the discrepancy analysis accepts (:func:`sim.discrepancy.signals.minimum_samples`)."""
+    return minimum_samples(AnalysisConfig(), LOG_SAMPLE_PERIOD_S) * LOG_SAMPLE_PERIOD_S
 
 
 def main(argv: list[str] | None = None) -> None:
@@ -39,7 +47,16 @@ def main(argv: list[str] | None = None) -> None:
                         help=f"log length (default {DEFAULT_DURATION_S:g} s)")
     parser.add_argument("--out", type=Path, default=Path("out"), metavar="DIR",
                         help="directory of demo_log.csv and demo_rig.toml (default out/)")
+    add_no_figures_arg(parser)
     args = parser.parse_args(argv)
+    check_output_paths(parser, args)
+    samples = minimum_samples(AnalysisConfig(), LOG_SAMPLE_PERIOD_S)
+    if round(args.duration / LOG_SAMPLE_PERIOD_S) < samples:
+        shortest = shortest_analysable_duration_s()
+        parser.error(f"--duration {args.duration:g} s: the analysis needs a log of at least {shortest:g} s "
+                     f"({samples} samples at 1 kHz: four times its filter guards of {AnalysisConfig().guard_s:g} s "
+                     f"at both ends of the fit and held-out parts, and a few filter periods); valid range "
+                     f"[{shortest:g}, {MAX_DURATION_S:g}] s")
     experiment = args.experiment or REVEALING_EXPERIMENT[args.effect]
     spec = EFFECTS[args.effect]
     if not spec.applies(baseline_rig(experiment)):

@@ -1,6 +1,7 @@
 """Identify the default gear friction and backlash parameters from the paper's Tables VI-VII.
 
     python -m experiments.identify_defaults [--json PATH] [--duration S] [--rerun PATH.rrd] [--rerun-spawn]
+                                            [--no-plot]
 
 What it fits, to what
 ---------------------
@@ -45,7 +46,8 @@ residual of every figure for the chosen one.
 
 --rerun / --rerun-spawn record the step, disturbance and sinusoid runs of the best candidate: the runs of the
 best candidate so far are kept during the search (no re-run). --duration shortens every test (a quick check of
-the command line; the scores need the full length).
+the command line; the scores need the full length, and the output says so). The command draws no figures
+(--no-plot is accepted, as by every experiment).
 """
 
 from __future__ import annotations
@@ -58,8 +60,9 @@ from pathlib import Path
 
 import numpy as np
 
-from experiments.common import (add_rerun_args, check_output_paths, cli_parser, outside_band, record_rerun,
-                                rerun_requested, run_seconds, run_settings, write_json)
+from experiments.common import (add_no_figures_arg, add_rerun_args, check_output_paths, cli_parser, outside_band,
+                                record_rerun, rerun_requested, run_seconds, run_settings, short_run_banner,
+                                write_json)
 from experiments.sinusoid import run_sinusoid
 from experiments.step import run_step
 from sim.params import TestbedParams
@@ -107,6 +110,7 @@ def main(argv: list[str] | None = None) -> None:
                              "need the full length)")
     add_rerun_args(parser, "the best candidate's step, disturbance and sinusoid runs (kept during the search, "
                            "not re-run)")
+    add_no_figures_arg(parser)
     args = parser.parse_args(argv)
     check_output_paths(parser, args)
     keep = rerun_requested(args)
@@ -128,6 +132,7 @@ def main(argv: list[str] | None = None) -> None:
         print(f"[{i + 1}/{len(combos)}] {overrides}: RMS |ln ratio| {rms_log:.3f}, max {max_log:.3f} "
               f"({time.perf_counter() - start:.0f} s)", file=sys.stderr, flush=True)
     results.sort(key=lambda r: r["rms_log_ratio"])
+    short_run_banner(args)
     print(f"{'rank':>4s} {'RMS ln':>7s} {'max ln':>7s} {'<=1.5x':>7s}  candidate")
     n_fit = sum(1 for r in results[0]["rows"] if r["table"] in FIT_TABLES)
     for rank, r in enumerate(results, 1):

@@ -1,6 +1,7 @@
 """Model card: every parameter with unit and source, and the derived and simulated quantities.
 
-    python -m experiments.plant [--params TOML] [--json PATH] [--plot DIR] [--rerun PATH.rrd] [--rerun-spawn]
+    python -m experiments.plant [--params TOML] [--json PATH] [--plot DIR | --no-plot] [--rerun PATH.rrd]
+                                [--rerun-spawn]
 
 --plot DIR (default out/) saves ``plant.png``: the motor's current-to-torque map with its driver limit, and the
 two measurements the card simulates (breakaway ramp, backlash reversal) beside their parameters.
@@ -16,8 +17,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from experiments.common import (add_params_arg, add_rerun_args, load_params_arg, record_rerun, rerun_requested,
-                                write_outputs)
+from experiments.common import (add_output_args, add_params_arg, add_rerun_args, load_params_arg, record_rerun,
+                                rerun_requested, write_outputs)
 from models.gim8108_testbed.derived import FIXTURES, derive, lumped_modes_hz, physics_timestep, substeps_by_rule
 from sim.characterize import linearizable_plant, linearized_modes, measure_backlash, measure_breakaway
 from sim.figures import save_figure
@@ -170,9 +171,7 @@ def plot_card(card: PlantCard, params: TestbedParams, directory: Path) -> Path:
 def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(prog=f"python -m {__spec__.name}", description="Print the testbed's model card.")
     add_params_arg(parser)
-    parser.add_argument("--json", type=Path, metavar="PATH", help="write the card as JSON to this path")
-    parser.add_argument("--plot", type=Path, metavar="DIR", default=Path("out"),
-                        help="save the card's figure (plant.png) in DIR (default out/)")
+    add_output_args(parser, "write the card as JSON to this path")
     add_rerun_args(parser, "the breakaway ramp (free fixture) and backlash reversal (locked fixture) runs the "
                            "card simulates (kept while measuring, not re-run)")
     args = parser.parse_args(argv)

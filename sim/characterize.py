@@ -9,7 +9,7 @@ import mujoco
 import numpy as np
 
 from sim.params import TestbedParams
-from sim.plant import SIGNAL_UNITS, Plant
+from sim.plant import SIGNAL_UNITS, Plant, warn_mujoco_warnings
 from sim.run import signal_columns
 from sim.runlog import RunLog
 
@@ -197,6 +197,7 @@ def free_vibration_peak_hz(plant: Plant, *, duration_s: float = 2.0, kick_joint:
     for k in range(n):
         mujoco.mj_step(m, d)
         twist[k] = d.qpos[q_flex]
+    warn_mujoco_warnings()
     twist -= twist.mean()
     nfft = 8 * n
     spectrum = np.abs(np.fft.rfft(twist * np.hanning(n), nfft))

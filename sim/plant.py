@@ -10,6 +10,7 @@ force are positive when the motor pushes the lever positive against the load cel
 from __future__ import annotations
 
 import math
+import warnings
 
 import mujoco
 import numpy as np
@@ -39,7 +40,46 @@ SIGNAL_UNITS: dict[str, str] = {
 
 
 class SimulationDiverged(RuntimeError):
-    """The physics blew up; the message names the step, the stiffest mode and the likely cause."""
+    """The physics blew up; the message names the step, the stiffest mode, the likely cause and MuJoCo's own
+    warning."""
+
+
+class MujocoWarning(RuntimeWarning):
+    """A warning of MuJoCo's (a bad value, an unstable simulation) on a run that goes on."""
+
+
+# MuJoCo's warnings since they were last taken. MuJoCo's own handler prints them and appends them to
+# MUJOCO_LOG.TXT in the working directory; this module installs one that keeps them here instead, and
+# Plant.step raises them (SimulationDiverged) or warns (MujocoWarning).
+_MUJOCO_WARNINGS: list[str] = []
+
+
+def _keep_mujoco_warning(text: str) -> None:
+    # Called by MuJoCo from C: an exception here would abort the process, so it only keeps the text.
+    _MUJOCO_WARNINGS.append(text)
+
+
+def install_mujoco_warning_handler() -> None:
+    """Keep MuJoCo's warnings for :func:`take_mujoco_warnings` instead of printing them and writing
+    MUJOCO_LOG.TXT into the working directory (done on import; a handler set by the caller is kept)."""
+    if mujoco.get_mju_user_warning() is None:
+        mujoco.set_mju_user_warning(_keep_mujoco_warning)
+
+
+def take_mujoco_warnings() -> list[str]:
+    """MuJoCo's warnings (texts) since the last call, oldest first; the list is emptied."""
+    taken = _MUJOCO_WARNINGS[:]
+    del _MUJOCO_WARNINGS[:len(taken)]
+    return taken
+
+
+def warn_mujoco_warnings(stacklevel: int = 2) -> None:
+    """Issue every warning MuJoCo gave since the last call as a :class:`MujocoWarning` ("MuJoCo: <text>")."""
+    for text in take_mujoco_warnings():
+        warnings.warn(f"MuJoCo: {text}", MujocoWarning, stacklevel=stacklevel + 1)
+
+
+install_mujoco_warning_handler()
 
 
 class Plant:
@@ -131,6 +171,7 @@ class Plant:
         self._qpos[self._q_backlash] = -half_gap
         self._set_load_friction(0.0)
         mujoco.mj_forward(self.model, self.data)
+        warn_mujoco_warnings()
         self.thermal = ThermalState(self.params.thermal, ambient_c)
         self._tmp117_c = self.thermal.tmp117_reading_c()  # quantised once per thermal update, not per read
         self._command_sq_sum = 0.0  # Σ (limited command)² over the thermal update [N²·m²]
@@ -171,6 +212,7 @@ class Plant:
         d.act[self._act_current] = current / self.params.motor.torque_constant_nm_per_a
         self._tau_cmd = float(past[-1])
         mujoco.mj_forward(m, d)
+        warn_mujoco_warnings()
 
     def _set_load_friction(self, load_nm: float) -> None:
         # Load-dependent gear friction (efficiency) is not native to MuJoCo. It is the gear joint's
@@ -184,7 +226,20 @@ class Plant:
         on the lever [N·m]. The driver limits the command to its current limit,
         ``CurrentToTorqueMap.command_limit_nm`` (the command that delivers motor.peak_torque_nm), and the motor
         delivers ``CurrentToTorqueMap.delivered_nm`` of that (magnetic saturation,
-        ``motor.torque_saturation_per_nm``)."""
+        ``motor.torque_saturation_per_nm``).
+
+        Raises
+        ------
+        ValueError
+            If a torque is not finite (the plant is left as it was).
+        SimulationDiverged
+            If the physics blew up during the tick.
+
+        A warning MuJoCo gives on a tick that goes on is issued as a :class:`MujocoWarning`.
+        """
+        if not (math.isfinite(tau_cmd_nm) and math.isfinite(tau_ext_nm)):
+            raise ValueError(f"tau_cmd_nm = {tau_cmd_nm!r} N·m, tau_ext_nm = {tau_ext_nm!r} N·m: torques must be "
+                             f"finite")
         d = self.data
         self._tau_cmd = tau_cmd_nm
         limit = self._command_limit_nm
@@ -202,6 +257,8 @@ class Plant:
         # expected value or a non-finite state means the run diverged.
         if d.time < t_expected - self._half_step_s or not math.isfinite(self._qvel[self._dof_motor]):
             raise SimulationDiverged(self._divergence_message(t_expected))
+        if _MUJOCO_WARNINGS:
+            warn_mujoco_warnings()
         # Copper loss: the winding carries the driver's current (not just its torque-producing part), taken as
         # the limited command, tau_nm / (N·K_t): it lags by the 0.5 ms delay and the 0.16 ms current loop,
         # nothing against the 0.1 s thermal update (and the inverse map per tick cost ~2 % of a tick).
@@ -225,7 +282,8 @@ class Plant:
                 f"ω_max = {self.omega_max_rad_s:.4g} rad/s (ω_max·h = {omega_h:.3g}; semi-implicit Euler needs "
                 f"< 2). Check the stiffnesses (flexure K_t = {self._k_flexure:.4g} N·m/rad, load cell "
                 f"{self._k_loadcell:.4g} N·m/rad) and inertias, or leave the step to the rule "
-                f"(simulation.max_omega_dt = {self.params.simulation.max_omega_dt}).")
+                f"(simulation.max_omega_dt = {self.params.simulation.max_omega_dt})."
+                + "".join(f" MuJoCo: {text}" for text in take_mujoco_warnings()))
 
     def read_signals(self, out: np.ndarray) -> None:
         """Write the signals of ``SIGNAL_UNITS``, in its order, into ``out`` (one call per tick in a run)."""

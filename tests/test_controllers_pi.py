@@ -98,7 +98,7 @@ def test_without_antiwindup_the_integrator_winds_up():
 def test_invalid_gains_are_refused_with_the_field_and_range(field, value):
     """The error names the field and its valid range; an infinite end is shown open, as inf is refused."""
     kwargs = {"output_limit_nm": 18.0, field: value}
-    with pytest.raises(ValueError, match=f"{field} = .*valid range [[(].*, inf\\)"):
+    with pytest.raises(ValueError, match=rf"{field} = .*valid range [(\[].*, inf\)"):
         PITorqueController(**kwargs)
 
 

@@ -3,6 +3,7 @@ vectorisation, and that one step is one tick of the experiments' loop."""
 
 import dataclasses
 import tomllib
+import warnings
 from pathlib import Path
 
 import gymnasium as gym
@@ -42,9 +43,21 @@ def rollout(env, seed, actions, options=None):
     return np.array(out), np.array(rewards)
 
 
+# What Gymnasium's checker advises against by design here: the action is a torque in N·m (not normalised), and
+# the observations (angles, velocities) have no bounds.
+CHECK_ENV_ADVICE = ("For Box action spaces, we recommend using a symmetric and normalized space",
+                    "A Box observation space minimum value is -infinity",
+                    "A Box observation space maximum value is infinity")
+
+
 def test_check_env_passes():
-    """Gymnasium's own checker accepts the environment (spaces, seeding, reset/step contract)."""
-    check_env(make(), skip_render_check=True)
+    """Gymnasium's own checker accepts the environment (spaces, seeding, reset/step contract) and warns of
+    nothing but the design choices of CHECK_ENV_ADVICE."""
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        check_env(make(), skip_render_check=True)
+    others = [str(w.message) for w in caught if not any(a in str(w.message) for a in CHECK_ENV_ADVICE)]
+    assert not others
 
 
 def test_make_by_id_after_import_of_sim_and_registration_is_idempotent():
@@ -155,6 +168,45 @@ def test_action_is_clipped_to_the_command_that_delivers_the_peak_torque():
     env.reset(seed=0)
     assert env.step(np.array([1e3], np.float32))[4]["command_nm"] == pytest.approx(limit, rel=1e-12)
     assert env.plant.torque_command_nm == pytest.approx(limit, rel=1e-12)
+
+
+@pytest.mark.parametrize("action,message", [
+    (np.array([np.nan], np.float32), "action nan: expected a finite torque command"),
+    (np.array([np.inf]), "action inf: expected a finite torque command"),
+    (np.array([0.1, 0.2], np.float32), "action of shape (2,): expected shape (1,)"),
+    (np.float32(0.1), "action of shape (): expected shape (1,)"),
+    ([[0.1]], "action of shape (1, 1): expected shape (1,)"),
+])
+def test_a_non_finite_or_wrong_shaped_action_raises_and_leaves_no_file(tmp_path, monkeypatch, action, message):
+    """A NaN or infinite command, or an action not of the action space's shape, raises a ValueError naming it
+    (as Gymnasium's MuJoCo environments do for a wrong shape), before the plant moves; MuJoCo writes nothing
+    into the working directory."""
+    monkeypatch.chdir(tmp_path)
+    env = make()
+    env.reset(seed=0)
+    with pytest.raises(ValueError) as exc:
+        env.step(action)
+    assert message in str(exc.value)
+    assert env.plant.time_s == 0.0
+    assert env.step(np.zeros(1, np.float32))[4]["diverged"] is False  # the episode goes on
+    assert not any(tmp_path.iterdir())
+
+
+def test_a_diverging_simulation_terminates_the_episode_saying_so_and_writes_no_file(tmp_path, monkeypatch):
+    """A plant that diverges (one physics step per tick cannot resolve its ~1 kHz modes) ends the episode with
+    info["diverged"] and a message naming the physics step and MuJoCo's own warning; no MUJOCO_LOG.TXT."""
+    monkeypatch.chdir(tmp_path)
+    env = make(episode_duration_s=2.0)
+    env.reset(seed=0)
+    env.plant = Plant(env.params, "locked", timestep_s=1e-3)
+    env.plant.reset(backlash_side=env.reference.first_sign)
+    for _ in range(2000):
+        _, reward, terminated, _, info = env.step(env.action_space.high)
+        if terminated:
+            break
+    assert terminated and info["diverged"] is True and reward == 0.0
+    assert "simulation diverged" in info["message"] and "MuJoCo: Nan, Inf or huge value" in info["message"]
+    assert not any(tmp_path.iterdir())
 
 
 def test_randomised_motors_never_take_more_than_the_box_nor_more_than_their_own_driver_limit():

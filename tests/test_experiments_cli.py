@@ -1,5 +1,7 @@
-"""Every closed-loop experiment's command line runs in its short mode and writes what it promises."""
+"""Every closed-loop experiment's command line runs in its short mode and writes what it promises; bad input is a
+usage error before anything runs."""
 
+import argparse
 import json
 import os
 import subprocess
@@ -7,6 +9,8 @@ import sys
 from pathlib import Path
 
 import pytest
+
+from sim.params import TestbedParams
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -127,15 +131,6 @@ def test_outputs_that_would_overwrite_an_input_or_cannot_be_written_are_refused_
     assert params.read_text() == "[friction]\nbreakaway_torque_nm = 0.14\n" and a_file.read_text() == "keep"
 
 
-def test_a_parameter_set_the_model_cannot_be_built_from_is_a_usage_error_naming_the_field(tmp_path):
-    """A gear ratio whose physics step outgrows the backlash stops' time constant names that field and its range."""
-    params = tmp_path / "rig.toml"
-    params.write_text("[motor]\ngear_ratio = 36\n")
-    result = run("experiments.step", "--duration", "0.05", "--params", str(params))
-    assert result.returncode == 2 and "Traceback" not in result.stderr
-    assert "backlash.stop_time_constant_s = 0.000125 s is below two physics steps; valid range" in result.stderr
-
-
 @pytest.mark.parametrize("module,what", [("experiments.discrepancy", "replay"),
                                          ("experiments.plant", "breakaway ramp"),
                                          ("experiments.identify_defaults", "not re-run")])
@@ -146,3 +141,169 @@ def test_analysis_commands_offer_rerun_and_say_what_they_record(module, what):
     assert result.returncode == 0, result.stderr
     text = " ".join(result.stdout.split())
     assert "--rerun PATH.rrd" in text and "--rerun-spawn" in text and what in text
+
+
+# ---------------------------------------------------------------- bad input never crashes a command line
+def usage_error(main, argv, capsys) -> str:
+    """Run ``main(argv)`` in this process, expecting a usage error (exit status 2); its stderr."""
+    with pytest.raises(SystemExit) as exc:
+        main(argv)
+    assert exc.value.code == 2
+    err = capsys.readouterr().err
+    assert "Traceback" not in err
+    return err
+
+
+@pytest.mark.parametrize("flag,path,message", [
+    ("--rerun", "/proc/x.rrd", "--rerun: cannot write under /proc"),
+    ("--rerun", "{tmp}", "--rerun {tmp} is a directory"),
+    ("--rerun", "{tmp}/run.txt", "a rerun recording is a .rrd file"),
+    ("--json", "/proc/x.json", "--json: cannot write under /proc"),
+    ("--plot", "/proc/figures", "--plot: cannot write under /proc"),
+])
+def test_an_output_that_cannot_be_written_is_refused_before_the_run(tmp_path, capsys, flag, path, message):
+    """A --rerun, --json or --plot that could not be written at the end (a read-only place, a directory where a
+    file is expected, a recording without .rrd) is a usage error naming the flag, before anything runs."""
+    from experiments import step
+
+    path, message = path.format(tmp=tmp_path), message.format(tmp=tmp_path)
+    err = usage_error(step.main, ["--duration", "0.05", flag, path], capsys)
+    assert message in err and "running" not in err
+
+
+def test_two_outputs_naming_the_same_file_are_refused(tmp_path, capsys):
+    """--json and --rerun naming one file would overwrite each other: a usage error."""
+    from experiments import step
+
+    same = str(tmp_path / "run.rrd")
+    err = usage_error(step.main, ["--duration", "0.05", "--json", same, "--rerun", same], capsys)
+    assert "--json and --rerun name the same file" in err
+
+
+@pytest.mark.parametrize("flag,path,message", [
+    ("--save-rig", "/proc/extended.toml", "--save-rig: cannot write under /proc"),
+    ("--save-rig", "{tmp}/rig.toml", "--save-rig {tmp}/rig.toml is an input of this run"),
+    ("--save-rig", "{tmp}/note.txt/extended.toml", "--save-rig: cannot write under {tmp}/note.txt"),
+    ("--rerun", "/proc/d.rrd", "--rerun: cannot write under /proc"),
+])
+def test_discrepancy_refuses_an_output_it_could_not_write_before_the_analysis(tmp_path, capsys, flag, path, message):
+    """experiments.discrepancy checks --save-rig (its directory must exist or be creatable, and be writable) and
+    --rerun before reading the log."""
+    from experiments import discrepancy
+
+    (tmp_path / "note.txt").write_text("keep")
+    (tmp_path / "rig.toml").write_text('model = "testbed"\nfixture = "locked"\n')
+    path, message = path.format(tmp=tmp_path), message.format(tmp=tmp_path)
+    err = usage_error(discrepancy.main, [str(tmp_path / "log.csv"), "--rig", str(tmp_path / "rig.toml"), flag, path],
+                      capsys)
+    assert message in err
+
+
+def test_discrepancy_refuses_a_rig_file_that_is_not_text(tmp_path, capsys):
+    """A binary --rig file is a usage error naming the file and saying it is not UTF-8 text."""
+    from experiments import discrepancy
+
+    rig = tmp_path / "bin.toml"
+    rig.write_bytes(b"model = \"testbed\"\n\xff\xfe\x00\x81")
+    err = usage_error(discrepancy.main, [str(tmp_path / "log.csv"), "--rig", str(rig)], capsys)
+    assert f"rig file {rig} is not UTF-8 text" in err
+
+
+@pytest.mark.parametrize("args,message", [
+    (["--out", "/proc/demo"], "--out: cannot write under /proc"),
+    (["--out", "{tmp}/note.txt"], "--out {tmp}/note.txt exists and is not a directory"),
+    (["--duration", "0.1"], "--duration 0.1 s: the analysis needs a log of at least 0.82 s"),
+])
+def test_discrepancy_demo_refuses_what_it_could_not_write_or_the_analysis_could_not_use(tmp_path, capsys, args,
+                                                                                         message):
+    """An --out that cannot hold the two files, or a log too short for the analysis (four times its filter guards,
+    plus 20 samples), is a usage error before anything is simulated."""
+    from experiments import discrepancy_demo
+
+    (tmp_path / "note.txt").write_text("keep")
+    argv = [a.format(tmp=tmp_path) for a in args]
+    err = usage_error(discrepancy_demo.main, argv + ([] if "--out" in argv else ["--out", str(tmp_path / "d")]),
+                      capsys)
+    assert message.format(tmp=tmp_path) in err and "simulating" not in err
+    assert not (tmp_path / "d").exists()
+
+
+def test_the_shortest_demo_log_is_one_the_analysis_runs_on_and_its_extended_rig_goes_to_a_new_directory(tmp_path):
+    """A demo log of the shortest accepted duration passes the analysis's length rule, and --save-rig into a
+    directory that does not exist yet creates it."""
+    from experiments import discrepancy, discrepancy_demo
+
+    shortest = discrepancy_demo.shortest_analysable_duration_s()
+    discrepancy_demo.main(["--duration", f"{shortest:g}", "--out", str(tmp_path)])
+    saved = tmp_path / "new" / "dir" / "extended.toml"
+    discrepancy.main([str(tmp_path / "demo_log.csv"), "--rig", str(tmp_path / "demo_rig.toml"), "--workers", "1",
+                      "--no-replay", "--no-plot", "--save-rig", str(saved)])
+    assert saved.read_text().startswith("#")
+
+
+EXPERIMENTS_WITH_FIGURES = ("plant", "step", "sinusoid", "admittance", "paper", "open_loop_step", "calibration",
+                            "thermal", "tune", "discrepancy")
+EXPERIMENTS_WITHOUT_FIGURES = ("identify_defaults", "discrepancy_demo")
+
+
+@pytest.mark.parametrize("name", EXPERIMENTS_WITH_FIGURES + EXPERIMENTS_WITHOUT_FIGURES)
+def test_every_experiment_takes_no_plot_and_those_with_figures_take_plot(name, capsys):
+    """README: every experiment takes --no-plot; those that draw figures take --plot DIR."""
+    import importlib
+
+    module = importlib.import_module(f"experiments.{name}")
+    with pytest.raises(SystemExit) as exc:
+        module.main(["--help"])
+    assert exc.value.code == 0
+    text = capsys.readouterr().out
+    assert "--no-plot" in text
+    assert ("--plot DIR" in text) == (name in EXPERIMENTS_WITH_FIGURES)
+
+
+def test_plant_card_with_no_plot_draws_nothing(tmp_path, monkeypatch, capsys):
+    """experiments.plant --no-plot prints the card and writes no figure (nor out/)."""
+    from experiments import plant
+
+    monkeypatch.chdir(tmp_path)
+    plant.main(["--no-plot"])
+    out = capsys.readouterr().out
+    assert "Derived and simulated" in out and "figure:" not in out
+    assert not any(tmp_path.iterdir())
+
+
+def test_identify_defaults_says_a_short_run_is_short_before_its_ranking(monkeypatch, capsys):
+    """identify_defaults --duration prints the banner the other experiments print before the tables."""
+    from experiments import identify_defaults
+
+    def candidate(params, seed=0, duration_s=None):
+        return [{"table": "VI", "quantity": "q", "unit": "N·m", "paper": 1.0, "sim": 1.1, "ratio": 1.1}], {}
+
+    monkeypatch.setattr(identify_defaults, "GRID", {("backlash", "width_rad"): (0.5e-3,)})
+    monkeypatch.setattr(identify_defaults, "run_candidate", candidate)
+    identify_defaults.main(["--duration", "0.05"])
+    out = capsys.readouterr().out
+    assert out.index("SHORT RUN (--duration 0.05 s)") < out.index("rank") < out.index("best:")
+
+
+def test_a_gear_ratio_the_defaults_cannot_simulate_names_it_the_file_and_the_values_to_set(tmp_path, capsys):
+    """A file setting only motor.gear_ratio = 36 lengthens the physics step past what the default solver time
+    constants resolve: the error names the file, the field it set, both time constants and the value they need
+    over both fixtures; the file amended as the message says is accepted."""
+    from experiments import step
+    from experiments.common import load_params_arg
+    from models.gim8108_testbed.derived import physics_timestep
+
+    path = tmp_path / "my_rig.toml"
+    path.write_text("[motor]\ngear_ratio = 36\n")
+    err = " ".join(usage_error(step.main, ["--duration", "0.05", "--params", str(path)], capsys).split())
+    params = TestbedParams().replace(motor={"gear_ratio": 36.0})
+    needed = 2.0 * max(physics_timestep(params, fixture)[0] for fixture in ("locked", "free"))
+    assert f"{path}: motor.gear_ratio = 36 (default 8)" in err
+    for field in ("backlash.stop_time_constant_s = 0.000125 s", "friction.load_friction_time_constant_s = 0.000125 s"):
+        assert field in err
+    suggested = float(err.split("stop_time_constant_s = ")[-1].split()[0])
+    assert needed <= suggested < 1.01 * needed and f"valid range [{suggested:g}, 1] s" in err
+    path.write_text(f"[motor]\ngear_ratio = 36\n[backlash]\nstop_time_constant_s = {suggested:g}\n"
+                    f"[friction]\nload_friction_time_constant_s = {suggested:g}\n")
+    args = argparse.Namespace(params=path, json=None, plot=None)
+    assert load_params_arg(argparse.ArgumentParser(), args).motor.gear_ratio == 36.0

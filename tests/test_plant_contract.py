@@ -87,6 +87,44 @@ def test_a_diverging_run_raises_and_names_the_timestep():
             plant.step(P.motor.peak_torque_nm)
 
 
+def test_divergence_carries_mujocos_warning_and_writes_no_log_file(tmp_path, monkeypatch, capfd):
+    """MuJoCo's warning of the divergence is in the SimulationDiverged message: MuJoCo neither prints it nor
+    writes MUJOCO_LOG.TXT into the working directory."""
+    monkeypatch.chdir(tmp_path)
+    plant = Plant(P, "locked", timestep_s=1e-3)
+    with pytest.raises(SimulationDiverged, match=r"MuJoCo: Nan, Inf or huge value in QACC"):
+        for _ in range(2000):
+            plant.step(P.motor.peak_torque_nm)
+    assert not any(tmp_path.iterdir())
+    assert "WARNING" not in capfd.readouterr().out
+
+
+@pytest.mark.parametrize("tau_cmd,tau_ext", [(math.nan, 0.0), (math.inf, 0.0), (0.1, math.nan), (0.1, -math.inf)])
+def test_a_non_finite_command_or_external_torque_is_refused_before_the_physics_moves(tau_cmd, tau_ext):
+    """Plant.step refuses a non-finite torque with a ValueError naming it; the plant stays where it was."""
+    plant = Plant(P, "locked")
+    with pytest.raises(ValueError, match="must be finite"):
+        plant.step(tau_cmd, tau_ext)
+    assert plant.time_s == 0.0
+    plant.step(0.1)
+    assert plant.time_s == pytest.approx(P.simulation.control_period_s)
+
+
+def test_a_mujoco_warning_without_divergence_is_a_python_warning(tmp_path, monkeypatch, capfd):
+    """A warning MuJoCo raises on a run that goes on (here a NaN control written past Plant.step) becomes a
+    MujocoWarning at the next tick instead of a console line and a log file."""
+    from sim.plant import MujocoWarning
+
+    monkeypatch.chdir(tmp_path)
+    plant = Plant(P, "locked")
+    plant.data.ctrl[:] = math.nan
+    mujoco.mj_step(plant.model, plant.data)
+    with pytest.warns(MujocoWarning, match="MuJoCo: Nan, Inf or huge value in CTRL"):
+        plant.step(0.0)
+    assert not any(tmp_path.iterdir())
+    assert "WARNING" not in capfd.readouterr().out
+
+
 def test_timestep_override_must_divide_the_control_period():
     """A physics step that does not divide 1 ms is refused."""
     with pytest.raises(ValueError, match="whole number of steps"):

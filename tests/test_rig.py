@@ -105,3 +105,11 @@ def test_saved_rig_loads_back_with_effects_and_new_values(tmp_path):
     assert back.effects == extended.effects
     with pytest.raises(FileExistsError):
         save_rig(extended, path)
+
+
+def test_a_rig_file_that_is_not_text_is_refused_naming_it(tmp_path):
+    """A binary file given as a rig is a RigError naming the file and saying it is not UTF-8 text."""
+    path = tmp_path / "bin.toml"
+    path.write_bytes(b"\x89PNG\r\n\x1a\n\xff\xfe")
+    with pytest.raises(RigError, match=f"rig file {path} is not UTF-8 text"):
+        load_rig(path)

@@ -7,6 +7,7 @@ beside this module (a test checks they are current); the simulator always builds
 from __future__ import annotations
 
 import argparse
+import math
 from pathlib import Path
 
 import mujoco
@@ -23,19 +24,87 @@ def _f(x: float) -> str:
     return f"{x:.9g}"
 
 
+# solref time constants of the model's constraint rows [s]: MuJoCo resolves none stiffer than two physics steps
+SOLVER_TIME_CONSTANTS = (("backlash", "stop_time_constant_s"), ("friction", "load_friction_time_constant_s"))
+
+
+def _longest_step_s(p: TestbedParams, fixtures) -> float:
+    return max(physics_timestep(p, fixture)[0] for fixture in fixtures)
+
+
+def _step_lengthening_fields(p: TestbedParams, fixtures) -> list[str]:
+    """``group.field = value (default d)`` of every field that differs from the defaults and, set back to its
+    default alone, gives a shorter physics step in ``fixtures``."""
+    default, h = TestbedParams(), _longest_step_s(p, fixtures)
+    found = []
+    for name, value, unit, _ in p.rows():
+        group, field = name.split(".")
+        base = getattr(getattr(default, group), field)
+        if value == base or (group, field) in SOLVER_TIME_CONSTANTS:
+            continue
+        try:
+            reverted = p.replace(**{group: {field: base}})
+        except ParameterError:  # the field cannot go back alone (a constraint between fields)
+            continue
+        if _longest_step_s(reverted, fixtures) < h:
+            unit = "" if unit == "1" else f" {unit}"
+            found.append(f"{name} = {value:g}{unit} (default {base:g}{unit})")
+    return found
+
+
+def check_time_constants(p: TestbedParams, fixtures=FIXTURES, source: str | None = None) -> None:
+    """Refuse solver time constants shorter than two physics steps of ``fixtures``.
+
+    Parameters
+    ----------
+    p : TestbedParams
+        The parameter set.
+    fixtures : sequence of str
+        The fixtures the parameters are to build (the longest of their physics steps sets the bound).
+    source : str, optional
+        Where the parameters come from (a file), named in the message as the place to set the values.
+
+    Raises
+    ------
+    ParameterError
+        Naming every time constant below two physics steps, the value each needs, and the fields of ``p`` that
+        differ from the defaults and lengthen the step (``physics_timestep``: a higher gear ratio or rotor
+        inertia slows the presliding dynamics and so lengthens the step).
+    """
+    h = _longest_step_s(p, fixtures)
+    low = [(group, field, getattr(getattr(p, group), field)) for group, field in SOLVER_TIME_CONSTANTS
+           if getattr(getattr(p, group), field) < 2.0 * h * (1.0 - 1e-9)]
+    if not low:
+        return
+    scale = 10.0 ** (math.floor(math.log10(2.0 * h)) - 2)
+    needed = math.ceil(2.0 * h / scale - 1e-6) * scale  # two steps rounded up to 3 digits: a value that passes
+    n = round(p.simulation.control_period_s / h)
+    names = " and ".join(f"{group}.{field} = {value:g} s" for group, field, value in low)
+    step = (f"h = {h:.3g} s ({n} physics steps per {p.simulation.control_period_s:g} s control tick; "
+            f"models.gim8108_testbed.derived.physics_timestep: the stiffest mode of the drivetrain and the "
+            f"presliding time set it)")
+    bound = f"valid range [{needed:g}, 1] s, as MuJoCo resolves no constraint faster than two physics steps"
+    verb = "is" if len(low) == 1 else "are"
+    drivers = _step_lengthening_fields(p, fixtures)
+    if drivers:
+        message = (f"{', '.join(drivers)} {'lengthens' if len(drivers) == 1 else 'lengthen'} the physics step to "
+                   f"{step}, so {names} {verb} too short: {bound}")
+    else:
+        message = f"{names} {verb} below two physics steps of {step}: {bound}"
+    settings = " and ".join(f"[{group}] {field} = {needed:g}" for group, field, _ in low)
+    raise ParameterError(f"{message}. Set {settings} in {source if source is not None else 'the parameters'}")
+
+
 def build_xml(p: TestbedParams, fixture: str) -> str:
-    """MJCF text of the testbed in ``fixture`` ('locked': lever tip on the load cell; 'free': lever turns)."""
+    """MJCF text of the testbed in ``fixture`` ('locked': lever tip on the load cell; 'free': lever turns).
+
+    Raises ParameterError for solver time constants the fixture's physics step cannot resolve
+    (:func:`check_time_constants`)."""
     if fixture not in FIXTURES:
         raise ValueError(f"fixture = {fixture!r}: valid values are {FIXTURES}")
     d = derive(p)
     h, _ = physics_timestep(p, fixture)
-    for name, value in (("backlash.stop_time_constant_s", p.backlash.stop_time_constant_s),
-                        ("friction.load_friction_time_constant_s", p.friction.load_friction_time_constant_s)):
-        if value < 2.0 * h * (1.0 - 1e-9):
-            raise ParameterError(f"{name} = {value} s is below two physics steps; valid range "
-                                 f"[{2.0 * h:.3g}, 1] s for the physics step h = {h:.3g} s that these "
-                                 f"parameters need (models.gim8108_testbed.derived.physics_timestep: the "
-                                 f"stiffest mode of the drivetrain and the presliding time set it)")
+    check_time_constants(p, (fixture,))
     n = p.motor.gear_ratio
     fr, fl, lever = p.friction, p.flexure, p.lever
     locked = fixture == "locked"

@@ -179,6 +179,8 @@ def load_rig(path: str | Path) -> Rig:
         raise RigError(f"rig file {path} does not exist") from None
     except tomllib.TOMLDecodeError as exc:
         raise RigError(f"rig file {path} is not valid TOML: {exc}") from None
+    except UnicodeDecodeError as exc:
+        raise RigError(f"rig file {path} is not UTF-8 text (TOML): {exc.reason} at byte {exc.start}") from None
     try:
         return rig_from_dict(data, source=path.name)
     except RigError as exc:

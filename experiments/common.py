@@ -164,7 +164,7 @@ def write_outputs(args: argparse.Namespace, data: dict[str, Any], plot=None) -> 
             print(f"figure: {path}")
 
 
-# ---------------------------------------------------------------- closed-loop experiments (issue 4)
+# ---------------------------------------------------------------- closed-loop experiments
 FEEDBACK_CHOICES = ("current", "sensor", "both")
 
 
@@ -199,7 +199,7 @@ def add_no_figures_arg(parser: argparse.ArgumentParser) -> None:
                         help="accepted as by every experiment; this command draws no figures")
 
 
-# ---------------------------------------------------------------- rerun recordings (issue 5)
+# ---------------------------------------------------------------- rerun recordings
 def add_rerun_args(parser: argparse.ArgumentParser, what: str = "every run's log (3D testbed and time series)") -> None:
     """--rerun PATH.rrd and --rerun-spawn: record ``what`` with :mod:`sim.recording`."""
     parser.add_argument("--rerun", type=Path, metavar="PATH.rrd", help=f"write a rerun recording of {what}")
@@ -334,7 +334,7 @@ def loadcell_torque_nm(log, seed: int | None = None, noise_n: float | None = Non
     return torque + rng.normal(0.0, noise_n * log.meta["lever_length_m"], len(torque))
 
 
-TARGET_RATIO = 1.5  # every simulated figure within a factor 1.5 of the paper's (issues 3 and 4)
+TARGET_RATIO = 1.5  # the target band: every simulated figure within a factor 1.5 of the paper's
 
 
 def outside_band(ratio: float | None, band: float = TARGET_RATIO) -> bool:

@@ -336,6 +336,7 @@ def analyse(log: RunLog, rig: Rig, config: AnalysisConfig | None = None, *, prog
         "model_log": "; ".join(notes) or "the same fit on the current model's own log",
         "candidates": [[s.to_dict() for s in scores] for scores in rounds],
         "significance_rule": {"min_ic_drop": config.min_ic_drop, "min_relative_gain": config.min_relative_gain,
+                              "min_effort_change": config.min_effort_change,
                               "min_event_z": config.min_event_z, "block_s": config.block_s,
                               "min_parameter_change": config.min_parameter_change,
                               "max_stability_z": config.max_stability_z},

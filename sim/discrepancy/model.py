@@ -44,11 +44,12 @@ from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
+from scipy.signal import butter, sosfiltfilt
 
 from models.gim8108_testbed.derived import derive
 from sim.discrepancy.effects import EFFECTS, TESTBED, Effect, Scale, rig_kind
 from sim.discrepancy.rig import Rig
-from sim.discrepancy.signals import AnalysisConfig, Prepared, testbed_constants
+from sim.discrepancy.signals import FILTER_ORDER, AnalysisConfig, Prepared, derivative, rms, testbed_constants
 from sim.motor_torque import CurrentToTorqueMap
 
 CHANNEL_UNITS = {"effort": ("N·m", "N"), "sensor": ("N·m", "N·m"), "kinematic": ("rad", "m")}
@@ -59,9 +60,13 @@ CACHE_SIZE = 8  # cached terms per group (fits vary one group of parameters at a
 RIGID_STICK_FRACTION = 0.01  # rigid joint: stuck below 1 % of the log's RMS velocity
 # Rigid joint: effort samples within this many filter periods (1/f_c) of a stick-slip transition do not count.
 # The plant's dry friction jumps at the transition; the filtered balance smears that jump over the filter's
-# impulse response (~1/f_c each side), which the sign of the filtered velocity cannot place. Counted, they
-# carried the baseline effort residual of a slide log and pulled a fitted dead time 0.6-0.8 ms long.
+# impulse response (~1/f_c each side), which the sign of the filtered velocity cannot place. The transitions are
+# found at the log's rate, from the velocity in twice the analysis band: at a reversal a joint sticks for a few
+# milliseconds, which the band's own velocity smears into a zero crossing. Counted, those samples carried most
+# of the baseline effort residual of rigid joints under a stick-slip (Karnopp) plant (15 x the rest on a slide's
+# multisine log) and gave spurious dead times and compliances.
 RIGID_TRANSITION_GUARD_PERIODS = 1.0
+RIGID_STICK_BAND_FACTOR = 2.0  # stick-slip transitions: from the velocity low-passed at this x the analysis band
 # Testbed: the load-dependent dry friction counts as stuck (a band) below 20 % of the Stribeck velocity. The
 # filtered velocity smears reversals over ~1/f_c while MuJoCo's frictionloss flips sign at once; 2 % left a
 # baseline residual of 0.34 N·m on the locked experiment, 20 % leaves 0.014 N·m (8 s log).
@@ -169,8 +174,13 @@ class Surrogate:
             self.stick_velocity = TESTBED_STICK_FRACTION_OF_STRIBECK * self.rig.params.friction.stribeck_velocity_rad_s
         else:
             self.stick_velocity = RIGID_STICK_FRACTION * float(np.sqrt(np.mean(d.velocity**2)))
-        self.stuck = np.abs(d.velocity) < self.stick_velocity
-        self.near_transition = self._near_transition()
+        if self.testbed:
+            self.stuck = np.abs(d.velocity) < self.stick_velocity
+            self.near_transition = np.zeros(len(d.t), dtype=bool)
+        else:
+            stuck_full = np.abs(self._transition_velocity()) < self.stick_velocity
+            self.stuck = stuck_full[d.grid]
+            self.near_transition = self._near(d.t_full[np.flatnonzero(stuck_full[1:] != stuck_full[:-1]) + 1])
         self.slide_sign = np.sign(d.velocity)
         self.stuck_edge, self.stuck_band = self._load_friction_while_stuck()
         self.channels = ["effort"]
@@ -178,6 +188,7 @@ class Surrogate:
             self.channels.append("sensor")
         if self.testbed and d.q is not None and d.has_motor_encoder:
             self.channels.append("kinematic")
+        self.command_rms = rms(d.filt(d.u_full)[d.held | d.fit])  # [N·m | N] the command in the analysis band
         peak = self.theta0["peak_effort"]
         self.scale = Scale(
             effort=max(float(np.abs(d.u_full).max()), peak if math.isfinite(peak) else 0.0, 1e-12),
@@ -200,13 +211,20 @@ class Surrogate:
             cache.popitem(last=False)
         return value
 
-    def _near_transition(self) -> np.ndarray:
-        """Rigid joint: grid samples within RIGID_TRANSITION_GUARD_PERIODS of a stick-slip transition."""
+    def _transition_velocity(self) -> np.ndarray:
+        """Rigid joint: the velocity low-passed at RIGID_STICK_BAND_FACTOR x the analysis band, full rate
+        [rad/s | m/s] (the analysis band's own where that is above the Nyquist frequency)."""
         d = self.data
-        if self.testbed:
-            return np.zeros(len(d.t), dtype=bool)
+        cutoff = RIGID_STICK_BAND_FACTOR * self.config.filter_cutoff_hz
+        if cutoff >= 0.45 / d.dt:
+            return d.velocity_full
+        sos = butter(FILTER_ORDER, cutoff, fs=1.0 / d.dt, output="sos")
+        return derivative(sosfiltfilt(sos, d.position_full), d.dt)
+
+    def _near(self, edges: np.ndarray) -> np.ndarray:
+        """Grid samples within RIGID_TRANSITION_GUARD_PERIODS filter periods of any time in ``edges`` [s]."""
+        d = self.data
         guard_s = RIGID_TRANSITION_GUARD_PERIODS / self.config.filter_cutoff_hz
-        edges = d.t[np.flatnonzero(self.stuck[1:] != self.stuck[:-1]) + 1]
         if not len(edges):
             return np.zeros(len(d.t), dtype=bool)
         nearest = np.searchsorted(edges, d.t)

@@ -46,6 +46,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from models.gim8108_testbed.build import check_time_constants
 from models.gim8108_testbed.derived import FIXTURES, derive
 from sim.discrepancy.effects import EFFECTS, rig_kind
 from sim.discrepancy.effects.transport_delay import MAX_DELAY_S
@@ -286,6 +287,7 @@ def _testbed(data: dict[str, Any], source: str) -> Rig:
         overrides.setdefault("lever", {})["length_m"] = lever
     try:
         params = from_dict(overrides)
+        check_time_constants(params, (fixture,), source=source)
     except ParameterError as exc:
         raise RigError(str(exc)) from None
     return Rig("testbed", "hinge", params=params, fixture=fixture, overrides=overrides, source=source)

@@ -16,6 +16,11 @@ fails is recorded as the reason (``Candidate.rejected_by``):
     fitted parameters;
 ``gain``
     in some channel the held-out RMSE falls by at least ``min_relative_gain`` of the current model's;
+``size``
+    an effect on the effort changes the model's held-out effort prediction by at least ``min_effort_change`` of
+    the command (RMS): below that, a discrepancy is within what the surrogate resolves (its mismatch with a
+    simulated plant of the same physics is 0.1-0.4 % of the command), however much of a small residual it
+    explains;
 ``events``
     the improvement holds across the held-out part. The per-sample drop of the squared residuals
     (channels weighted by their mean square before) is summed per block of ``block_s``; the mean block drop,
@@ -53,7 +58,7 @@ from sim.discrepancy.effects import EFFECTS
 from sim.discrepancy.fit import FitOutcome, fit_keys, standard_errors
 from sim.discrepancy.model import Surrogate
 
-RULES = ("bound", "bic", "gain", "events", "moved", "stationary")
+RULES = ("bound", "bic", "gain", "size", "events", "moved", "stationary")
 WIDEN = 10.0  # a fit at a bound is repeated with bounds this many times as wide
 LARGE_GAIN = 1.0 / 3.0  # a candidate explaining this much passes 'events' on the blocks it changes
 LARGE_GAIN_BLOCK_SHARE = 2.0 / 3.0  # ... if it improves this share of them
@@ -85,6 +90,7 @@ class Candidate:
     rejected_by: str | None  # the first rule that failed (None: passes)
     seconds: float
     at_bound: dict[str, str] = field(default_factory=dict)
+    effort_change: float = float("nan")  # RMS change of the held-out effort prediction / command RMS [1]
     held_out_parameters: dict[str, float] | None = None  # fitted on the held-out part alone ('stationary')
     model_log_parameters: dict[str, float] | None = None  # fitted on the model's own log ('moved')
     note: str = ""
@@ -106,7 +112,8 @@ class Candidate:
         return {k: self.fit.theta[k] for k in EFFECTS[self.effect].keys}
 
     def to_dict(self) -> dict[str, Any]:
-        return {"effect": self.effect, "delta_bic": self.delta_bic, "gains": self.gains, "event_z": self.event_z,
+        return {"effect": self.effect, "delta_bic": self.delta_bic, "gains": self.gains,
+                "effort_change": self.effort_change, "event_z": self.event_z,
                 "improved_block_share": self.improved_block_share, "passes": self.passes,
                 "rejected_by": self.rejected_by, "at_bound": self.at_bound, "parameters": self.parameters,
                 "held_out_parameters": self.held_out_parameters,
@@ -140,6 +147,15 @@ def compare(before: ChannelScore, after: ChannelScore, n_params: int) -> tuple[f
         gains[channel] = 1.0 - rmse_after / rmse_before
     delta += n_params * math.log(max(total, 1.0))
     return delta, gains
+
+
+def _effort_change(before: ChannelScore, after: ChannelScore) -> float:
+    """RMS change of the held-out effort residual between two models [N·m | N] (0 without an effort channel)."""
+    b, a = before.residuals.get("effort"), after.residuals.get("effort")
+    if b is None or a is None:
+        return 0.0
+    ok = np.isfinite(a) & np.isfinite(b)
+    return float(np.sqrt(np.mean((b[ok] - a[ok]) ** 2))) if ok.any() else 0.0
 
 
 def block_drops(before: ChannelScore, after: ChannelScore, block: int) -> np.ndarray:
@@ -225,11 +241,14 @@ def fit_candidate(model: Surrogate, effect: str, theta: dict[str, float], accept
     gain = max(gains.values()) if gains else 0.0
     block = max(1, int(round(cfg.block_s / (model.data.dt * model.data.grid_step))))
     z, share = event_test(before, after, block)
+    change = _effort_change(before, after)
     checks = {"bound": not at_bound, "bic": delta < -cfg.min_ic_drop, "gain": gain >= cfg.min_relative_gain,
+              "size": EFFECTS[effect].channel != "effort" or change >= cfg.min_effort_change * model.command_rms,
               "events": passes_events(gain, z, share, cfg.min_event_z),
               "moved": moved_enough(effect, theta, outcome.theta, cfg.min_parameter_change)}
     rejected = next((rule for rule in RULES if not checks.get(rule, True)), None)
-    candidate = Candidate(effect, outcome, after, delta, gains, z, share, rejected, 0.0, at_bound)
+    candidate = Candidate(effect, outcome, after, delta, gains, z, share, rejected, 0.0, at_bound,
+                          effort_change=change / model.command_rms if model.command_rms > 0 else float("nan"))
     if rejected is None:
         candidate = stationarity(model, candidate, theta, accepted, scales)
     return replace(candidate, seconds=time.perf_counter() - start)

@@ -32,7 +32,7 @@ import numpy as np
 
 from sim.discrepancy.effects import EFFECTS, Realisation
 from sim.discrepancy.rig import Rig
-from sim.plant import SIGNAL_UNITS, Plant, prime_ctrl_history
+from sim.plant import SIGNAL_UNITS, Plant, prime_ctrl_history, warn_mujoco_warnings
 
 RIGID_SUBSTEPS = 5  # rigid joint: physics steps per control tick (no stiff mode; the dry-friction row's time
 # constant is two physics steps, as the testbed's tuned rows)
@@ -233,6 +233,7 @@ def run_rigid(rig: Rig, command: CommandFn, n_ticks: int, *, initial: InitialSta
             mujoco.mj_step(model, data, RIGID_SUBSTEPS)
         state["q"], state["qd"] = float(data.qpos[0]), float(data.qvel[0])
         out[k] = (data.time, u, state["q"], state["qd"])
+    warn_mujoco_warnings()
     units = {"time": "s", "tau_cmd": "N" if slide else "N·m", "q": "m" if slide else "rad",
              "qd": "m/s" if slide else "rad/s"}
     return SimulatedRun({name: out[:, i].copy() for i, name in enumerate(units)}, units)

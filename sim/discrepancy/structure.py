@@ -29,7 +29,7 @@ from sim.discrepancy.effects import EFFECTS
 from sim.discrepancy.effects.periodic_disturbance import spectral_lines
 from sim.discrepancy.model import Surrogate, channel_unit
 from sim.discrepancy.selection import Candidate, ChannelScore, compare, event_test, passes_events
-from sim.discrepancy.signals import rms
+from sim.discrepancy.signals import derivative, rms
 
 SPECTRAL_TERMS = 2  # spectral lines of the residual in the generic basis
 WHITENESS_LAGS = 10  # Ljung-Box lags (independent samples)
@@ -95,7 +95,7 @@ def _basis(model: Surrogate, residual: np.ndarray) -> dict[str, list[np.ndarray]
     terms: dict[str, list[np.ndarray]] = {
         "velocity": [v], "velocity squared": [v * np.abs(v)], "sign of velocity": [np.where(sliding, np.sign(v), 0.0)],
         "acceleration": [d.acceleration], "position": [d.position], "command": [d.filt(d.u_full)],
-        "command rate": [d.filt(np.gradient(d.u_full, d.dt))], "time": [d.t - d.t[0]],
+        "command rate": [d.filt(derivative(d.u_full, d.dt))], "time": [d.t - d.t[0]],
     }
     if model.rig.joint == "hinge" and float(np.ptp(d.position)) > 1.0:
         terms["sin/cos of position"] = [np.sin(d.position), np.cos(d.position)]

@@ -27,10 +27,13 @@ class EffortGain(Effect):
     def realise(self, values, rig):
         if rig.model != "testbed":
             return Realisation()  # the rigid joint's own gain (its actuator's gear)
-        # the plant maps the command by the motor's current-to-torque map; ask it for g times what it delivers
+        # the plant maps the command by the motor's current-to-torque map; ask it for g times what it delivers for
+        # the command its driver lets through (clipped at the current limit first, as the surrogate does; the
+        # plant clips only what this map returns)
         torque_map = CurrentToTorqueMap.from_params(rig.params)
-        gain = values["effort_gain"]
-        return Realisation(command=lambda u: torque_map.command_nm(gain * torque_map.delivered_nm(u)))
+        gain, limit = values["effort_gain"], torque_map.command_limit_nm
+        return Realisation(command=lambda u: torque_map.command_nm(
+            gain * torque_map.delivered_nm(min(max(u, -limit), limit))))
 
     def draw(self, rig, rng):
         base = 1.0 if rig.model == "testbed" else rig.rigid["effort_gain"]

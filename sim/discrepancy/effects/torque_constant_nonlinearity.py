@@ -11,6 +11,7 @@ import math
 import numpy as np
 
 from sim.discrepancy.effects.base import Effect, Param, Realisation
+from sim.motor_torque import CurrentToTorqueMap
 
 MIN_PEAK_FRACTION = 0.3  # commands must reach 30 % of the peak effort
 SYNTHETIC_RANGE = (0.05, 0.15)
@@ -58,7 +59,10 @@ class TorqueConstantNonlinearity(Effect):
         peak = rig.params.motor.peak_torque_nm if rig.model == "testbed" else rig.rigid.get("peak_effort", math.inf)
         if not math.isfinite(peak):
             raise ValueError("torque_constant_nonlinearity needs the rig's peak effort (peak_effort)")
-        return Realisation(command=lambda u: float(rolled_off(u, c, peak)))
+        # the drive limits the command before the magnets roll it off (the surrogate clips first too); the testbed's
+        # plant clips only after this map, at its driver's current limit; a rigid joint's map is already clipped
+        limit = CurrentToTorqueMap.from_params(rig.params).command_limit_nm if rig.model == "testbed" else peak
+        return Realisation(command=lambda u: float(rolled_off(min(max(u, -limit), limit), c, peak)))
 
     def draw(self, rig, rng):
         return {"torque_rolloff": float(rng.uniform(*SYNTHETIC_RANGE))}

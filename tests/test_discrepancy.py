@@ -347,8 +347,8 @@ def test_cli_reports_json_and_an_extended_rig_that_the_simulator_runs(tmp_path, 
     cli.main([str(log_path), "--rig", str(rig_path), "--json", str(out_json), "--save-rig", str(out_rig),
               "--workers", "1", "--plot", str(tmp_path / "fig")])
     data = json.loads(out_json.read_text())
-    assert set(data) == {"baseline", "findings", "verdict", "unexplained", "rejected", "logs", "signal", "units",
-                         "run"}
+    assert set(data) == {"baseline", "findings", "tentative", "verdict", "unexplained", "rejected", "logs", "signal",
+                         "units", "run"}
     assert data["verdict"] == "found"
     assert set(data["findings"][0]) == {"effect", "kind", "parameters", "rmse_heldout_before", "rmse_heldout_after",
                                         "gain", "evidence"}

@@ -37,6 +37,7 @@ from sim.discrepancy.selection import (
     ChannelScore,
     against_model_log,
     carried_by_model,
+    effort_change,
     held_out_score,
     make_pool,
     run_round,
@@ -86,7 +87,9 @@ class DiscrepancyResult:
         The baseline model: rig, split, re-fitted free parameters, held-out RMSE per channel, autocorrelation,
         signatures, effects the logs cannot reveal and why, every round's candidate table, timings.
     findings : list of Finding
-        Accepted effects in the order found (parameters at the final joint fit).
+        Confident findings in the order found (parameters at the final joint fit).
+    tentative : list of Finding
+        Accepted effects that explain less than the unexplained remainder would: partial stand-ins.
     verdict : str
         'found', 'unexplained', 'found, and an unexplained remainder' or 'no significant discrepancy'.
     structure : Structure
@@ -104,6 +107,7 @@ class DiscrepancyResult:
 
     baseline: dict[str, Any]
     findings: list[Finding]
+    tentative: list[Finding]
     verdict: str
     structure: Structure
     rejected: list[dict[str, Any]]
@@ -128,7 +132,8 @@ class DiscrepancyResult:
         baseline = dict(self.baseline)
         if self.replay:
             baseline["replay"] = {k: v for k, v in self.replay.items() if not isinstance(v, np.ndarray)}
-        return {"baseline": baseline, "findings": [f.to_dict() for f in self.findings], "verdict": self.verdict,
+        return {"baseline": baseline, "findings": [f.to_dict() for f in self.findings],
+                "tentative": [f.to_dict() for f in self.tentative], "verdict": self.verdict,
                 "unexplained": self.structure.to_dict(), "rejected": self.rejected, "logs": self.logs,
                 "signal": self.signal, "units": self.units}
 
@@ -272,6 +277,7 @@ def analyse(log: RunLog, rig: Rig, config: AnalysisConfig | None = None, *, prog
     accepted: tuple[str, ...] = free + nuisance
     rounds: list[list[Candidate]] = []
     notes: list[str] = []
+    dropped: list[dict[str, str]] = []
     pool = make_pool(model)
     current, current_score = theta, before
     try:
@@ -299,6 +305,11 @@ def analyse(log: RunLog, rig: Rig, config: AnalysisConfig | None = None, *, prog
             accepted = tuple(dict.fromkeys(EFFECTS[best.effect].keys + accepted))
             current, current_score = best.fit.theta, best.score
             candidates = [c for c in candidates if c != best.effect]
+            while (pruned := _prune(model, findings, current, current_score, accepted, scales)) is not None:
+                finding, current, current_score, accepted, reason = pruned
+                findings.remove(finding)
+                dropped.append({"effect": finding.effect, "reason": reason})
+                _progress(f"dropped {finding.effect}: {reason}", progress)
     finally:
         if pool is not None:
             pool.shutdown()
@@ -309,6 +320,11 @@ def analyse(log: RunLog, rig: Rig, config: AnalysisConfig | None = None, *, prog
     t = time.perf_counter()
     refused = [c for c in rounds[-1] if not c.passes] if rounds else []
     structure = residual_structure(model, current, current_score, refused)
+    findings, tentative = _confident(findings, structure)
+    if tentative:
+        structure = replace(structure, description=structure.description + [
+            f"{f.effect} explains {100 * f.gain:.0f} % of the error it was found on, less than the remainder's "
+            f"structure: not a confident name" for f in tentative])
     timings["structure_s"] = time.perf_counter() - t
     extended = _extended_rig(rig, theta0, current, findings, model)
     residuals_final = model.residuals(current)
@@ -334,6 +350,7 @@ def analyse(log: RunLog, rig: Rig, config: AnalysisConfig | None = None, *, prog
         "signatures": signatures,
         "not_identifiable": not_identifiable,
         "model_log": "; ".join(notes) or "the same fit on the current model's own log",
+        "dropped": dropped,
         "candidates": [[s.to_dict() for s in scores] for scores in rounds],
         "significance_rule": {"min_ic_drop": config.min_ic_drop, "min_relative_gain": config.min_relative_gain,
                               "min_effort_change": config.min_effort_change,
@@ -344,7 +361,7 @@ def analyse(log: RunLog, rig: Rig, config: AnalysisConfig | None = None, *, prog
         "timings_s": timings,
     }
     return DiscrepancyResult(
-        baseline=baseline, findings=findings, verdict=verdict, structure=structure,
+        baseline=baseline, findings=findings, tentative=tentative, verdict=verdict, structure=structure,
         rejected=[_rejected(c, rig.joint) for c in refused if c.gain >= LISTED_REJECTED_GAIN],
         logs=_log_errors(model, sources, segments, theta, current),
         signal={c: CHANNEL_MEANING[c] for c in model.channels}, units=units, extended_rig=extended,
@@ -501,6 +518,42 @@ def _extended_rig(rig: Rig, theta0: dict[str, float], theta: dict[str, float], f
         if tied or coulomb > native.get("breakaway", rig.rigid["breakaway"]):  # one dry level: static = sliding
             native["breakaway"] = coulomb
     return rig.with_effects(tuple(added), {k: v for k, v in native.items() if v != theta0.get(k)})
+
+
+def _confident(findings: list[Finding], structure: Structure) -> tuple[list[Finding], list[Finding]]:
+    """(confident, tentative) findings: with an unexplained remainder, a finding that brought the held-out error
+    down by less than a generic model would bring the remainder down is a partial stand-in for what the library
+    does not hold, not a confident name."""
+    if not structure.unexplained:
+        return findings, []
+    remainder = structure.rmse.get("effort", 0.0) * max(structure.generic_gain, 0.0)
+    confident = [f for f in findings if f.evidence["channel"] != "effort"
+                 or f.rmse_heldout_before - f.rmse_heldout_after >= remainder]
+    return confident, [f for f in findings if f not in confident]
+
+
+def _prune(model: Surrogate, findings: list[Finding], current: dict[str, float], current_score: ChannelScore,
+           accepted: tuple[str, ...], scales: dict[str, float]):
+    """An earlier finding that the later ones made redundant, with the model refitted without it: (finding,
+    theta, score, accepted keys, reason), or None. A finding is redundant when, with the rig's own value (or
+    none) back in its place and the rest refitted, the held-out error grows by less than half of the smallest
+    gain the analysis accepts, or the effort prediction changes by less than its smallest reportable change."""
+    cfg = model.config
+    for finding in findings[:-1]:
+        keys = EFFECTS[finding.effect].keys
+        rest = tuple(k for k in accepted if k not in keys)
+        refit = fit_keys(model, {**current, **{k: model.theta0[k] for k in keys}}, rest, scales)
+        score = held_out_score(model, refit.theta)
+        channel = EFFECTS[finding.effect].channel
+        if channel not in score.rmse or not score.rmse[channel] > 0:
+            continue
+        kept_gain = 1.0 - current_score.rmse[channel] / score.rmse[channel]
+        change = effort_change(score, current_score) if channel == "effort" else math.inf
+        if kept_gain < 0.5 * cfg.min_relative_gain or change < cfg.min_effort_change * model.command_rms:
+            reason = (f"absorbed by the later findings: without it the held-out {channel} RMSE grows by "
+                      f"{100 * kept_gain:.1f} %")
+            return finding, refit.theta, score, rest, reason
+    return None
 
 
 def _first_passing(scores: list[Candidate], sources: list[Source], rig: Rig, config: AnalysisConfig,

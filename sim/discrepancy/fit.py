@@ -79,7 +79,10 @@ def residual_vector(model: Surrogate, theta: dict[str, float], mask: np.ndarray,
     return np.concatenate(parts)
 
 
-def _at_bound(key: str, value: float, low: float, high: float) -> str | None:
+def at_bound_of(key: str, value: float, low: float, high: float, start: float | None = None) -> str | None:
+    """'lower' or 'upper' if ``value`` of ``key`` sits at that bound of [low, high], else None. A phase is never
+    at a bound; nor is a parameter at its neutral value (the effect absent) when the fit started there
+    (``start``): a rig's nonzero value fitted down to zero is at its bound (it wanted past zero)."""
     if key in NUISANCE_KEYS:
         return None
     param = effect_of_key(key).param(key)
@@ -87,7 +90,7 @@ def _at_bound(key: str, value: float, low: float, high: float) -> str | None:
         return None
     tolerance = AT_BOUND * (high - low) if math.isfinite(high - low) else AT_BOUND * max(abs(value), 1e-12)
     for side, bound in (("lower", low), ("upper", high)):
-        if abs(value - bound) <= tolerance and bound != param.neutral:
+        if abs(value - bound) <= tolerance and not (bound == param.neutral and start in (None, param.neutral)):
             return side
     return None
 
@@ -138,7 +141,7 @@ def fit_keys(model: Surrogate, theta0: dict[str, float], keys: tuple[str, ...], 
     theta.update(zip(keys, solution.x.tolist(), strict=True))
     for key in keys:
         theta = effect_of_key(key).canonical(theta, model.rig.joint) if key not in NUISANCE_KEYS else theta
-    at_bound = {k: side for k, (low, high) in bounds.items() if (side := _at_bound(k, theta[k], low, high))}
+    at_bound = {k: side for k, (low, high) in bounds.items() if (side := at_bound_of(k, theta[k], low, high, theta0[k]))}
     return FitOutcome(theta, keys, float(2.0 * solution.cost), evaluations, bounds, at_bound, solution.jac)
 
 

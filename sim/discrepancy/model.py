@@ -178,9 +178,13 @@ class Surrogate:
             self.stuck = np.abs(d.velocity) < self.stick_velocity
             self.near_transition = np.zeros(len(d.t), dtype=bool)
         else:
-            stuck_full = np.abs(self._transition_velocity()) < self.stick_velocity
+            v = self._transition_velocity()
+            stuck_full = np.abs(v) < self.stick_velocity
             self.stuck = stuck_full[d.grid]
-            self.near_transition = self._near(d.t_full[np.flatnonzero(stuck_full[1:] != stuck_full[:-1]) + 1])
+            moving = np.flatnonzero(~stuck_full)
+            reversals = moving[1:][np.sign(v[moving[1:]]) != np.sign(v[moving[:-1]])]  # also without a stuck sample
+            changes = np.flatnonzero(stuck_full[1:] != stuck_full[:-1]) + 1
+            self.near_transition = self._near(d.t_full[np.union1d(changes, reversals)])
         self.slide_sign = np.sign(d.velocity)
         self.stuck_edge, self.stuck_band = self._load_friction_while_stuck()
         self.channels = ["effort"]

@@ -7,8 +7,9 @@ fails is recorded as the reason (``Candidate.rejected_by``):
 
 ``bound``
     none of its parameters ends at a bound of its range, after one re-fit with the bounds ten times as wide
-    (within the parameter's physical validity): a fit that wants a value the rig's scale makes implausible is
-    not that effect;
+    (within the parameter's physical validity), and it drives none of the accepted parameters to a bound: a fit
+    that wants a value the rig's scale makes implausible, or that only helps by shrinking the whole balance
+    (an effort gain with every other term free), is not that effect;
 ``bic``
     the held-out BIC falls by more than ``min_ic_drop``:
     ``ΔBIC = Σ_c n_c·ln(RSS_c,after / RSS_c,before) + k·ln(n) < -min_ic_drop``, ``n_c`` the channel's independent
@@ -55,7 +56,7 @@ from typing import Any
 import numpy as np
 
 from sim.discrepancy.effects import EFFECTS
-from sim.discrepancy.fit import FitOutcome, fit_keys, standard_errors
+from sim.discrepancy.fit import FitOutcome, at_bound_of, fit_keys, standard_errors
 from sim.discrepancy.model import Surrogate
 
 RULES = ("bound", "bic", "gain", "size", "events", "moved", "stationary")
@@ -149,7 +150,7 @@ def compare(before: ChannelScore, after: ChannelScore, n_params: int) -> tuple[f
     return delta, gains
 
 
-def _effort_change(before: ChannelScore, after: ChannelScore) -> float:
+def effort_change(before: ChannelScore, after: ChannelScore) -> float:
     """RMS change of the held-out effort residual between two models [N·m | N] (0 without an effort channel)."""
     b, a = before.residuals.get("effort"), after.residuals.get("effort")
     if b is None or a is None:
@@ -235,13 +236,16 @@ def fit_candidate(model: Surrogate, effect: str, theta: dict[str, float], accept
     own = set(EFFECTS[effect].keys)
     if any(k in own for k in outcome.at_bound):
         outcome = fit_effect(model, effect, theta, accepted, scales, widen=WIDEN)
-    at_bound = {k: side for k, side in outcome.at_bound.items() if k in own}
+    # its own parameters, or accepted ones it drives to a bound they were not at (a degenerate joint fit, e.g.
+    # an effort gain shrinking every term of the balance with it)
+    at_bound = {k: side for k, side in outcome.at_bound.items()
+                if k in own or at_bound_of(k, theta[k], *outcome.bounds[k]) is None}
     after = held_out_score(model, outcome.theta)
     delta, gains = compare(before, after, len(EFFECTS[effect].keys))
     gain = max(gains.values()) if gains else 0.0
     block = max(1, int(round(cfg.block_s / (model.data.dt * model.data.grid_step))))
     z, share = event_test(before, after, block)
-    change = _effort_change(before, after)
+    change = effort_change(before, after)
     checks = {"bound": not at_bound, "bic": delta < -cfg.min_ic_drop, "gain": gain >= cfg.min_relative_gain,
               "size": EFFECTS[effect].channel != "effort" or change >= cfg.min_effort_change * model.command_rms,
               "events": passes_events(gain, z, share, cfg.min_event_z),

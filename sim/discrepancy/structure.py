@@ -5,10 +5,14 @@ the final model is regressed on a generic basis (fitted on the fit part, scored 
 significance rule as a candidate effect):
 
 - velocity, velocity·|velocity|, the sign of the velocity while sliding, acceleration, position, sin and cos of
-  position (a hinge), the command, the command's rate, time;
+  position (a hinge), the command's rate, time, and the products that make an inertia or a friction
+  level vary with position (acceleration or the sign of the velocity times the position, or its sine and
+  cosine) or a friction level drift with time;
 - the strongest lines of the residual's spectrum on the fit part (each a sine and a cosine in time).
 
-If that generic model explains a significant part of the held-out residual, the verdict is a discrepancy the
+The command itself is not in the basis: with it, the basis holds every term of the balance and rebuilds any
+residual by scaling the whole balance to nothing. If that generic model explains a significant part of the held-out residual (the candidates' rules 'bic',
+'gain', 'size' and 'events'), the verdict is a discrepancy the
 library does not name, described by the basis terms that carry it ("effort error grows with v|v|", "a 6.0 Hz
 line not locked to position"), with the RMSE it leaves. So is a candidate effect that would explain a third or
 more of the residual but was refused because its parameters sit at a bound of the rig's plausible range or drift
@@ -28,14 +32,15 @@ from scipy.stats import chi2
 from sim.discrepancy.effects import EFFECTS
 from sim.discrepancy.effects.periodic_disturbance import spectral_lines
 from sim.discrepancy.model import Surrogate, channel_unit
-from sim.discrepancy.selection import Candidate, ChannelScore, compare, event_test, passes_events
+from sim.discrepancy.selection import Candidate, ChannelScore, compare, effort_change, event_test, passes_events
 from sim.discrepancy.signals import derivative, rms
 
 SPECTRAL_TERMS = 2  # spectral lines of the residual in the generic basis
 WHITENESS_LAGS = 10  # Ljung-Box lags (independent samples)
 NEAREST_GAIN = 1.0 / 3.0  # a refused candidate explaining this much makes the remainder "unexplained"
 UNEXPLAINED_RULES = ("bound", "stationary")  # ... when refused for these
-TERM_SHOWN_GAIN = 0.5  # a basis term is named if alone it gains this share of the whole basis's gain
+TERM_SHOWN_GAIN = 0.5  # a basis term is named if alone it gains this share of the whole basis's gain ...
+TERMS_SHOWN = 2  # ... or is among the strongest two
 
 PHRASES = {
     "velocity": "effort error grows with the velocity",
@@ -44,9 +49,14 @@ PHRASES = {
     "acceleration": "effort error follows the acceleration (an inertia error)",
     "position": "effort error grows with the position (a spring toward a rest position)",
     "sin/cos of position": "effort error follows the joint angle once per turn (gravity, an unbalance)",
-    "command": "effort error follows the command (an effort gain error)",
     "command rate": "effort error follows the command's rate (a timing error)",
     "time": "effort error drifts with time",
+    "acceleration x position": "effort error follows the acceleration times a function of position (an inertia "
+                                "that varies with position)",
+    "sign of velocity x position": "effort error steps at reversals by an amount that varies with position (a "
+                                   "friction level that varies with position)",
+    "sign of velocity x time": "effort error steps at reversals by an amount that drifts with time (a friction "
+                               "level that changes over the log: warm-up, wear)",
 }
 
 
@@ -64,6 +74,8 @@ class Structure:
         Held-out RMSE the final model leaves, per channel [channel units].
     generic_gain : float
         Held-out RMSE drop a generic model of the effort residual achieves [1].
+    remainder_fraction : float
+        Held-out effort RMSE left, as a fraction of the command's RMS [1].
     terms : dict of str to float
         Held-out gain of each basis term alone [1].
     lines : list of dict
@@ -78,6 +90,7 @@ class Structure:
     description: list[str]
     rmse: dict[str, float]
     generic_gain: float
+    remainder_fraction: float
     terms: dict[str, float]
     lines: list[dict[str, Any]] = field(default_factory=list)
     whiteness: dict[str, float] = field(default_factory=dict)
@@ -85,7 +98,7 @@ class Structure:
 
     def to_dict(self) -> dict[str, Any]:
         return {"unexplained": self.unexplained, "description": self.description, "rmse": self.rmse,
-                "generic_gain": self.generic_gain, "terms": self.terms, "lines": self.lines,
+                "generic_gain": self.generic_gain, "remainder_fraction": self.remainder_fraction, "terms": self.terms, "lines": self.lines,
                 "whiteness": self.whiteness, "refused": self.refused}
 
 
@@ -94,11 +107,19 @@ def _basis(model: Surrogate, residual: np.ndarray) -> dict[str, list[np.ndarray]
     v, sliding = d.velocity, ~model.stuck
     terms: dict[str, list[np.ndarray]] = {
         "velocity": [v], "velocity squared": [v * np.abs(v)], "sign of velocity": [np.where(sliding, np.sign(v), 0.0)],
-        "acceleration": [d.acceleration], "position": [d.position], "command": [d.filt(d.u_full)],
+        "acceleration": [d.acceleration], "position": [d.position],
         "command rate": [d.filt(derivative(d.u_full, d.dt))], "time": [d.t - d.t[0]],
     }
+    sign = np.where(sliding, np.sign(v), 0.0)
+    x = d.position - float(np.mean(d.position))
     if model.rig.joint == "hinge" and float(np.ptp(d.position)) > 1.0:
         terms["sin/cos of position"] = [np.sin(d.position), np.cos(d.position)]
+        shapes = [np.sin(d.position), np.cos(d.position)]
+    else:
+        shapes = [x]
+    terms["acceleration x position"] = [d.acceleration * shape for shape in shapes]
+    terms["sign of velocity x position"] = [sign * shape for shape in shapes]
+    terms["sign of velocity x time"] = [sign * (d.t - d.t[0])]
     ok = d.fit & np.isfinite(residual)
     if ok.sum() > 32:
         for f in spectral_lines(model, residual, ok, SPECTRAL_TERMS):
@@ -155,6 +176,7 @@ def residual_structure(model: Surrogate, theta: dict[str, float], current: Chann
     gain = gains.get("effort", 0.0)
     z, share = event_test(before, after, block)
     significant = (delta < -cfg.min_ic_drop and gain >= cfg.min_relative_gain
+                   and effort_change(before, after) >= cfg.min_effort_change * model.command_rms
                    and passes_events(gain, z, share, cfg.min_event_z))
     alone = {}
     for name, columns in terms.items():
@@ -162,17 +184,18 @@ def residual_structure(model: Surrogate, theta: dict[str, float], current: Chann
         alone[name] = g.get("effort", 0.0)
     description = []
     lines = []
-    for name, value in sorted(alone.items(), key=lambda kv: -kv[1]):
+    for rank, (name, value) in enumerate(sorted(alone.items(), key=lambda kv: -kv[1])):
         if name.startswith("line "):
             frequency = float(name.split()[1])
             locked = _locked_to_position(model, theta, residual, ok_fit, value)
             lines.append({"frequency_hz": frequency, "gain": value, "locked_to_position": locked})
-        if significant and gain > 0 and value >= TERM_SHOWN_GAIN * gain:
+        if significant and value > 0 and (value >= TERM_SHOWN_GAIN * gain or rank < TERMS_SHOWN):
             if name.startswith("line "):
                 where = "locked to position" if lines[-1]["locked_to_position"] else "not locked to position"
-                description.append(f"a {float(name.split()[1]):.1f} Hz line {where}")
+                phrase = f"a {float(name.split()[1]):.1f} Hz line {where}"
             else:
-                description.append(PHRASES[name])
+                phrase = PHRASES[name]
+            description.append(f"{phrase} (alone it explains {100 * value:.0f} % of the held-out residual)")
     nearest = []
     for c in refused:
         if c.rejected_by in UNEXPLAINED_RULES and c.gain >= NEAREST_GAIN:
@@ -185,10 +208,12 @@ def residual_structure(model: Surrogate, theta: dict[str, float], current: Chann
     rmse = {c: current.rmse[c] for c in current.rmse}
     if unexplained:
         unit = channel_unit("effort", model.rig.joint)
-        description.append(f"it leaves {rmse['effort']:.4g} {unit} RMS held out")
+        description.insert(0, f"the final model leaves {rmse['effort']:.4g} {unit} RMS of effort error held out, "
+                              f"{100 * gain:.0f} % of which a generic model of it explains")
     independent = max(1, int(round(1.0 / d.independent_per_grid_sample)))
     whiteness = ljung_box(residual[d.held][::independent], min(WHITENESS_LAGS, max(1, int(d.held.sum()) // 8)))
-    return Structure(unexplained, description, rmse, gain, alone, lines, whiteness, nearest)
+    fraction = rmse["effort"] / model.command_rms if model.command_rms > 0 else float("nan")
+    return Structure(unexplained, description, rmse, gain, fraction, alone, lines, whiteness, nearest)
 
 
 def _locked_to_position(model: Surrogate, theta: dict[str, float], residual: np.ndarray, fit: np.ndarray,

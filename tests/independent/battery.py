@@ -498,6 +498,9 @@ def analyse_case(folder: Path, workers: int = 1) -> dict:
         result = run_analysis(folder / "log.csv", folder / "rig.toml", truth["joint"], workers)
         findings = [f.to_dict() for f in result.findings]
         analysis = {"verdict": result.verdict, "unexplained": result.structure.description,
+                    "remainder_fraction": result.structure.remainder_fraction,
+                    "whiteness_p": result.structure.whiteness.get("p_value"),
+                    "generic_gain": result.structure.generic_gain,
                     "rejected": result.rejected, "logs": result.logs}
         error = None
     except Exception as err:  # a case the analysis refuses is a result too

@@ -6,7 +6,7 @@ from __future__ import annotations
 from sim.discrepancy.effects.base import Effect, Param, Realisation, up_or_down
 from sim.motor_torque import CurrentToTorqueMap
 
-RANGE = (0.2, 5.0)  # fit bound: x the rig's gain
+RANGE = (0.5, 2.0)  # fit bound: x the rig's gain (a drive whose torque constant is off by more is not one the rig describes)
 UP, DOWN = (1.05, 1.15), (0.85, 0.95)  # synthetic draws: x the rig's gain
 
 
@@ -14,9 +14,9 @@ class EffortGain(Effect):
     name = "effort_gain"
     description = "effort delivered per unit of command (torque constant, current-sense gain)"
     params = (Param("effort_gain", "1", "1", "delivered effort per unit command", neutral=1.0,
-                    fields={"hinge": "effort_gain", "slide": "effort_gain"}, valid=(0.0, 1e6)),)
+                    fields={"hinge": "effort_gain", "slide": "effort_gain"}, valid=(0.0, 1e6), firm=True),)
     signature = "command"
-    order = 2
+    order = 45  # after the roll-off: on the testbed its realisation scales what the motor's map delivers
 
     def bounds(self, key, scale, theta):
         return RANGE[0] * scale.baseline["effort_gain"], RANGE[1] * scale.baseline["effort_gain"]

@@ -113,15 +113,21 @@ class PeriodicDisturbance(Effect):
 
 def spectral_lines(model, residual: np.ndarray, mask: np.ndarray, count: int) -> list[float]:
     """Frequencies of the ``count`` strongest local maxima of the residual's periodogram on ``mask``, within
-    :func:`frequency_range` [Hz] (the grid samples under ``mask`` taken as contiguous: the fit part is)."""
-    x = residual[mask] - residual[mask].mean()
+    :func:`frequency_range` [Hz]. Samples outside ``mask`` (the guards around stick-slip transitions, the other
+    part) count as zero on the grid's own time axis, so a line keeps its phase across the gaps."""
+    index = np.flatnonzero(mask & np.isfinite(residual))
+    if len(index) < 16:
+        return []
+    span = slice(index[0], index[-1] + 1)
+    inside = mask[span] & np.isfinite(residual[span])
+    x = np.where(inside, residual[span] - residual[index].mean(), 0.0)
     step = model.data.dt * model.data.grid_step
     pad = 8 * len(x)  # zero padding: a frequency grid 8 x finer than 1/T
     power = np.abs(np.fft.rfft(x * np.hanning(len(x)), pad)) ** 2
     freqs = np.fft.rfftfreq(pad, step)
     low, high = frequency_range(model)
-    inside = (freqs >= low) & (freqs <= high)
-    peaks = np.flatnonzero(inside[1:-1] & (power[1:-1] >= power[:-2]) & (power[1:-1] >= power[2:])) + 1
+    inside_band = (freqs >= low) & (freqs <= high)
+    peaks = np.flatnonzero(inside_band[1:-1] & (power[1:-1] >= power[:-2]) & (power[1:-1] >= power[2:])) + 1
     peaks = peaks[np.argsort(power[peaks])[::-1]][:count]
     return [float(freqs[i]) for i in peaks]
 

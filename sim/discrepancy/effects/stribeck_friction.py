@@ -21,6 +21,8 @@ LOW_SPEED_RANGE = (1e-3, 0.3)  # without a stated v_s: the Stribeck velocity is 
 MAX_LEVEL_OF_EFFORT = 2.0
 VELOCITY_GRID = (0.3, 1.0, 3.0)  # starts around a stated v_s
 LEVEL_GRID = (1.0, 1.5, 2.0)  # starts: x the current breakaway level
+PROBE_LEVEL = 1.5  # identifiability: a breakaway this many times the sliding level must show in the log ...
+PROBE_VELOCITY = 0.03  # ... at a Stribeck velocity up to this x the log's top speed (a drop at low speed)
 
 
 def stated(theta: dict[str, float]) -> bool:
@@ -68,10 +70,34 @@ class StribeckFriction(Effect):
             low, high = vs / 3, 3 * vs
         else:
             low, high = model.stick_velocity, LOW_SPEED_RANGE[1] * model.scale.velocity
-        fraction = float(((v > low) & (v < high)).mean())
+        counted = ~model.near_transition  # a rigid joint's samples next to a stick-slip transition do not count
+        fraction = float(((v > low) & (v < high) & counted).mean())
         if fraction < MIN_LOW_SPEED_FRACTION:
-            return (f"only {100 * fraction:.1f} % of the samples slide between {low:.3g} and {high:.3g} "
-                    f"(needs {100 * MIN_LOW_SPEED_FRACTION:g} %)")
+            return (f"only {100 * fraction:.1f} % of the samples that count slide between {low:.3g} and {high:.3g} "
+                    f"(needs {100 * MIN_LOW_SPEED_FRACTION:g} %; a joint that passes low speeds only at its "
+                    f"reversals shows them within the guards around stick-slip transitions)")
+        if not stated(model.scale.baseline):
+            return self._too_small(model, theta)
+        return None
+
+    def _too_small(self, model, theta):
+        """Why a breakaway PROBE_LEVEL x the sliding level, at a Stribeck velocity up to PROBE_VELOCITY x the log's
+        top speed, would not change the effort the log can show by the smallest reportable change (or None)."""
+        base = model.residuals(theta)["effort"]
+        counted = (model.data.fit | model.data.held) & np.isfinite(base)
+        level = max(theta["coulomb"], 1e-12)
+        largest = 0.0
+        low, _ = LOW_SPEED_RANGE
+        for vs in model.scale.velocity * np.geomspace(3 * low, PROBE_VELOCITY, 4):
+            probe = model.residuals({**theta, "stribeck_velocity": vs, "breakaway": PROBE_LEVEL * level})["effort"]
+            ok = counted & np.isfinite(probe)
+            largest = max(largest, float(np.sqrt(np.mean((probe[ok] - base[ok]) ** 2))) if ok.any() else 0.0)
+        floor = model.config.min_effort_change * model.command_rms
+        if largest < floor:
+            return (f"a breakaway {PROBE_LEVEL:g} x the sliding level with a Stribeck velocity up to "
+                    f"{100 * PROBE_VELOCITY:g} % of the top speed would change the effort of the samples that count "
+                    f"by {largest:.3g} RMS at most, below the smallest reportable change {floor:.3g}: the joint "
+                    f"passes low speeds only next to stick-slip transitions")
         return None
 
     def signature_signal(self, model, theta):

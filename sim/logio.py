@@ -71,11 +71,23 @@ _HDF5_USERBLOCK = 512  # a v7.3 .mat is HDF5 behind MATLAB's 512-byte header
 
 
 class LogError(ValueError):
-    """A run log breaks the format. ``column`` and ``row`` (spreadsheet row, header = 1) name where, if known."""
+    """A run log breaks the format.
 
-    def __init__(self, message: str, *, column: str | None = None, row: int | None = None) -> None:
+    ``path`` is the file at fault (the log or its sidecar); ``column`` and ``row`` (spreadsheet row,
+    header = 1) name where in it, if known. A message from :func:`read_log` starts with the file's name.
+    """
+
+    def __init__(self, message: str, *, column: str | None = None, row: int | None = None,
+                 path: Path | None = None) -> None:
         super().__init__(message)
-        self.column, self.row = column, row
+        self.column, self.row, self.path = column, row, path
+
+    def located(self, path: Path) -> LogError:
+        """This error, its message starting with ``path``'s name unless it names a file already."""
+        if self.path is None:
+            self.path = path
+            self.args = (f"{path.name}: {self.args[0]}",)
+        return self
 
 
 class LogWarning(UserWarning):
@@ -281,12 +293,16 @@ def read_log(path: str | Path, *, joint: str = "hinge", max_jitter: float = 0.05
     reader = _READERS.get(_suffix(path))
     if reader is None:
         raise LogError(f"cannot read {path.name!r}: unknown suffix {path.suffix!r}; use one of "
-                       f"{', '.join(_READERS)}")
-    raw = reader(path)
-    _check_columns(list(raw.columns), set(raw.declared), raw.where)
-    log_units = _units(list(raw.columns), raw.declared, units, joint, raw.where)
-    columns = {name: _to_float(name, values) for name, values in raw.columns.items()}
-    _check_samples(columns, max_jitter=max_jitter)
+                       f"{', '.join(_READERS)}", path=path)
+    try:
+        raw = reader(path)
+        _check_columns(list(raw.columns), set(raw.declared), raw.where)
+        log_units = _units(list(raw.columns), raw.declared, units, joint, raw.where)
+        columns = {name: _to_float(name, values) for name, values in raw.columns.items()}
+        _check_samples(columns, max_jitter=max_jitter)
+    except LogError as err:
+        err.located(path)
+        raise
     return (SlideRunLog if joint == "slide" else RunLog)(columns, log_units, raw.meta)
 
 
@@ -307,7 +323,7 @@ def _read_csv(path: Path) -> _Raw:
         header = [name.strip() for name in next(reader, [])]
         first = next(reader, None)
     if not header:
-        raise LogError(f"{path.name} is empty; the first row must name the columns", row=1)
+        raise LogError(f"{path.name} is empty; the first row must name the columns", row=1, path=path)
     if len(header) == 1 and (";" in header[0] or "\t" in header[0]):
         sep = "';'" if ";" in header[0] else "tabs"
         raise LogError(f"the header row is one cell {header[0]!r}: the file seems separated by {sep}; "
@@ -366,23 +382,40 @@ def _read_parquet(path: Path) -> _Raw:
 
     try:
         table = pq.read_table(path)
-    except pa.ArrowInvalid as err:
-        raise LogError(f"{path.name} is not a readable Parquet file: {err}") from None
+    except (pa.ArrowException, OSError) as err:  # truncated or corrupt: ArrowInvalid, OSError, ...
+        detail = re.sub(r" input source '[^']*'", "", str(err))
+        raise LogError(f"{path.name} is not a readable Parquet file: {detail}", path=path) from None
     names = table.column_names
     for j, name in enumerate(names):
         if name in names[:j]:
             raise LogError(f"column {name!r} appears twice", column=name)
     metadata = table.schema.metadata or {}
-    declared = _json_from(metadata.get(PARQUET_UNITS_KEY), f"{path.name}: schema metadata 'torquebed.units'")
-    meta = _json_from(metadata.get(PARQUET_META_KEY), f"{path.name}: schema metadata 'torquebed.meta'")
-    columns: dict[str, Any] = {}
-    for name in names:
-        column = table.column(name)
-        if (pa.types.is_floating(column.type) or pa.types.is_integer(column.type)) and column.null_count == 0:
-            columns[name] = np.array(column.to_numpy(), dtype=np.float64)
-        else:
-            columns[name] = column.to_pylist()  # text, booleans or nulls: _to_float names the first bad cell
+    units_key = "schema metadata 'torquebed.units'"
+    declared = _unit_map(_json_from(metadata.get(PARQUET_UNITS_KEY), units_key), units_key)
+    meta = _json_from(metadata.get(PARQUET_META_KEY), "schema metadata 'torquebed.meta'")
+    columns = {name: _parquet_column(name, table.column(name)) for name in names}
     return _Raw(columns, declared, meta, "the schema metadata 'torquebed.units'")
+
+
+def _parquet_column(name: str, column: Any) -> Any:
+    """A Parquet column as float64, or as cells (text, booleans, nulls) for ``_to_float`` to check one by one."""
+    import pyarrow as pa
+
+    kind = column.type
+    try:
+        if pa.types.is_dictionary(kind):  # e.g. pandas' categorical: read the values
+            column = column.cast(kind.value_type)
+            kind = column.type
+        if (pa.types.is_floating(kind) or pa.types.is_integer(kind)) and column.null_count == 0:
+            return np.array(column.to_numpy(), dtype=np.float64)
+        if any(test(kind) for test in (pa.types.is_floating, pa.types.is_integer, pa.types.is_string,
+                                       pa.types.is_large_string, pa.types.is_boolean, pa.types.is_null)):
+            return column.to_pylist()
+    except (pa.ArrowException, ValueError) as err:  # e.g. text that is not UTF-8
+        raise LogError(f"column {name!r} cannot be read: {err}", column=name) from None
+    hint = (" (convert to seconds, e.g. since the first sample)" if pa.types.is_temporal(kind) else "")
+    raise LogError(f"column {name!r} holds {kind} values; the format stores time in seconds and every signal as "
+                   f"numbers (float64; integers and numbers as text are converted){hint}", column=name)
 
 
 def _read_mat(path: Path) -> _Raw:
@@ -397,16 +430,17 @@ def _read_mat(path: Path) -> _Raw:
         try:
             major = matfile_version(str(path))[0]
         except (MatReadError, ValueError) as err:
-            raise LogError(f"{path.name} is not a MATLAB .mat file: {err}") from None
+            raise LogError(f"{path.name} is not a MATLAB .mat file: {err}", path=path) from None
         if major == 2:
-            raise LogError(f"{path.name} has a MATLAB v7.3 header but no HDF5 data after it; is it truncated?")
+            raise LogError(f"{path.name} has a MATLAB v7.3 header but no HDF5 data after it; is it truncated?",
+                           path=path)
         variables = {k: v for k, v in loadmat(str(path), simplify_cells=True).items() if not k.startswith("__")}
     units = variables.pop("units", None)
     meta_text = variables.pop("meta", None)
     declared = _mat_units(units)
     if meta_text is not None and not isinstance(meta_text, str):
-        raise LogError(f"{path.name}: variable 'meta' must be a char array of JSON text", column="meta")
-    meta = _json_from(meta_text, f"{path.name}: variable 'meta'")
+        raise LogError("variable 'meta' must be a char array of JSON text", column="meta")
+    meta = _json_from(meta_text, "variable 'meta'")
     columns: dict[str, Any] = {}
     for name, value in variables.items():
         columns[name] = _mat_vector(name, value)
@@ -419,7 +453,7 @@ def _read_mat73(path: Path) -> dict[str, Any]:
         import h5py
     except ImportError:
         raise LogError(f"{path.name} is a MATLAB v7.3 (HDF5) file; reading it needs h5py "
-                       f"(pip install h5py), or re-save it as v7 in MATLAB: save('{path.name}', '-v7')") from None
+                       f"(pip install h5py), or re-save it as v7 in MATLAB: save('{path.name}', '-v7')", path=path) from None
 
     def value(obj: Any) -> Any:
         cls = obj.attrs.get("MATLAB_class", b"")
@@ -490,14 +524,22 @@ _READERS: dict[str, Callable[[Path], _Raw]] = {".csv": _read_csv, ".parquet": _r
 
 
 def _json_from(text: bytes | str | None, where: str) -> dict[str, Any]:
+    """The JSON object in ``text`` ({} for None); ``where`` names it in messages."""
     if text is None:
         return {}
     try:
         value = json.loads(text)
-    except json.JSONDecodeError as err:
-        raise LogError(f"{where} is not valid JSON ({err})") from None
+    except (ValueError, RecursionError) as err:  # JSONDecodeError, UnicodeDecodeError, too many digits, nesting
+        raise LogError(f"{where} is not valid JSON ({type(err).__name__}: {err})") from None
     if not isinstance(value, dict):
         raise LogError(f"{where} must be a JSON object")
+    return value
+
+
+def _unit_map(value: dict[str, Any], where: str) -> dict[str, str]:
+    """``value`` if it maps column names to unit strings, else a LogError naming ``where``."""
+    if not all(isinstance(k, str) and isinstance(v, str) for k, v in value.items()):
+        raise LogError(f'{where} must map column names to unit strings, e.g. {{"tau_flexure": "N·m"}}')
     return value
 
 
@@ -597,8 +639,12 @@ def _rows(indices: np.ndarray) -> str:
 
 
 def _check_samples(columns: dict[str, np.ndarray], *, max_jitter: float) -> None:
-    """Length, finiteness, strictly increasing ``time``, regular sampling."""
+    """Equal lengths, length, finiteness, strictly increasing ``time``, regular sampling."""
     n = len(columns["time"])
+    for name, values in columns.items():
+        if len(values) != n:
+            raise LogError(f"column {name!r} has {len(values)} samples; 'time' has {n}", column=name,
+                           row=row_of(min(len(values), n)))
     if n < MIN_SAMPLES:
         raise LogError(f"the log has {n} sample(s); at least MIN_SAMPLES = {MIN_SAMPLES} are needed (the sampling "
                        f"check compares steps with the median step)")

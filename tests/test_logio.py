@@ -1,9 +1,11 @@
 """Run-log files: round trips in CSV, Parquet and .mat; every validation rule names its column and row."""
 
 import csv
+import decimal
 import hashlib
 import json
 import math
+import re
 import sys
 import warnings
 
@@ -497,3 +499,113 @@ def test_csv_with_trailing_blank_lines_reads_the_same_numbers(tmp_path):
     with path.open("a") as fh:
         fh.write("\n\n")
     assert_same(log, read_log(path), meta=False)
+
+
+# ------------------------------------------------------------------------------------- refusing bad input
+
+
+def _columns(rows=None) -> dict[str, np.ndarray]:
+    """The minimal rows as float columns."""
+    rows = rows or minimal_rows()
+    return {name: np.array([row[j] for row in rows[1:]], dtype=float) for j, name in enumerate(rows[0])}
+
+
+def _write_columns(path, columns, **mat_variables):
+    """Columns as a CSV, Parquet (pyarrow) or v5 .mat (savemat) file, by suffix; no units."""
+    if path.suffix == ".csv":
+        write_rows(path, [list(columns)] + [[repr(float(x)) for x in row] for row in zip(*columns.values())])
+    elif path.suffix == ".parquet":
+        pq.write_table(pa.table(columns), path)
+    else:
+        savemat(path, {**columns, **mat_variables}, oned_as="column")
+    return path
+
+
+@pytest.mark.parametrize("fmt", FORMATS)
+def test_every_error_names_the_file_once(tmp_path, fmt):
+    """A LogError from read_log starts with the file's name; a message that names it already is not prefixed."""
+    columns = _columns()
+    del columns["tau_cmd"]
+    path = _write_columns(tmp_path / f"run.{fmt}", columns)
+    with pytest.raises(LogError, match=rf"^run\.{fmt}: missing required column 'tau_cmd'") as err:
+        read_log(path)
+    assert err.value.column == "tau_cmd"
+    (tmp_path / f"empty.{fmt}").write_bytes(b"")
+    with pytest.raises(LogError) as err:
+        read_log(tmp_path / f"empty.{fmt}")
+    assert str(err.value).count(f"empty.{fmt}") == 1, str(err.value)
+
+
+def test_mat_columns_of_different_lengths_name_the_file_and_the_column(tmp_path):
+    """A 9-sample 'q' beside a 10-sample 'time' is a LogError naming run.mat, 'q' and the first missing row."""
+    path = _mat_log_file(tmp_path, q=np.zeros(9))
+    with pytest.raises(LogError, match=r"^run\.mat: column 'q' has 9 samples; 'time' has 10") as err:
+        read_log(path)
+    assert (err.value.column, err.value.row) == ("q", 11)
+
+
+def _mat_log_file(tmp_path, **variables):
+    """A v5 .mat of the 10-sample minimal log, with ``variables`` replacing or adding variables."""
+    return _write_columns(tmp_path / "run.mat", _columns(), **variables)
+
+
+def _parquet_with(tmp_path, **columns):
+    """A Parquet file of the minimal log with ``columns`` (pyarrow arrays) replacing or adding columns."""
+    table = pa.table({**{name: pa.array(values) for name, values in _columns().items()}, **columns})
+    pq.write_table(table, tmp_path / "run.parquet")
+    return tmp_path / "run.parquet"
+
+
+@pytest.mark.parametrize("units", ['{"q": 3}', '["rad"]', '{"q": null}'])
+def test_parquet_units_metadata_must_map_columns_to_unit_strings(tmp_path, units):
+    """'torquebed.units' that is not a JSON object of strings is a LogError naming the file and the key."""
+    table = pa.table(_columns()).replace_schema_metadata({b"torquebed.units": units})
+    pq.write_table(table, tmp_path / "run.parquet")
+    with pytest.raises(LogError, match=r"^run\.parquet: schema metadata 'torquebed.units' must"):
+        read_log(tmp_path / "run.parquet")
+
+
+@pytest.mark.parametrize("text", [b"\xff\xfe{", b"[" * 100_000, b'{"seed": ' + b"1" * 5000 + b"}"])
+def test_parquet_meta_that_is_not_json_is_refused(tmp_path, text):
+    """Non-UTF-8, too deeply nested or oversized-integer 'torquebed.meta' is a LogError naming the file."""
+    table = pa.table(_columns()).replace_schema_metadata({b"torquebed.meta": text})
+    pq.write_table(table, tmp_path / "run.parquet")
+    with pytest.raises(LogError, match=r"^run\.parquet: schema metadata 'torquebed.meta' is not valid JSON"):
+        read_log(tmp_path / "run.parquet")
+
+
+def test_a_truncated_parquet_file_is_refused_naming_it_once(tmp_path):
+    """A Parquet file cut anywhere is a LogError that names the file once."""
+    data = write_log(small_log(n=8), tmp_path / "whole.parquet").read_bytes()
+    for cut in range(0, len(data), max(1, len(data) // 40)):
+        (tmp_path / "cut.parquet").write_bytes(data[:cut])
+        with pytest.raises(LogError, match=r"^cut\.parquet is not a readable Parquet file") as err:
+            read_log(tmp_path / "cut.parquet")
+        assert str(err.value).count("cut.parquet") == 1
+
+
+def test_a_parquet_timestamp_time_column_is_refused_with_its_type(tmp_path):
+    """Nanosecond timestamps in 'time' are a LogError naming the column and the type, not a crash."""
+    stamps = pa.array(1_700_000_000_000_000_123 + 1_000_000 * np.arange(10), type=pa.timestamp("ns"))
+    with pytest.raises(LogError, match=r"^run\.parquet: column 'time' holds timestamp\[ns\] values; the format "
+                                       r"stores time in seconds") as err:
+        read_log(_parquet_with(tmp_path, time=stamps))
+    assert err.value.column == "time"
+
+
+@pytest.mark.parametrize("values", [pa.array([[0.1, 0.2]] * 10), pa.array([{"x": 1.0}] * 10),
+                                    pa.array([b"\x00\x01"] * 10), pa.array([decimal.Decimal("1.5")] * 10)],
+                         ids=["list", "struct", "binary", "decimal"])
+def test_parquet_columns_that_are_not_numbers_or_text_are_refused_with_their_type(tmp_path, values):
+    """List, struct, binary and decimal columns are a LogError naming the column and its Parquet type."""
+    kind = re.escape(str(values.type).split("<")[0])  # Parquet renames a list's item field
+    with pytest.raises(LogError, match=rf"^run\.parquet: column 'q' holds {kind}") as err:
+        read_log(_parquet_with(tmp_path, q=values))
+    assert err.value.column == "q"
+
+
+def test_a_dictionary_encoded_parquet_column_reads_as_its_values(tmp_path):
+    """A dictionary-encoded column (pandas' categorical) of numbers reads like the plain column."""
+    q = _columns()["q"]
+    log = read_log(_parquet_with(tmp_path, q=pa.array(q).dictionary_encode()))
+    assert np.array_equal(log["q"], q)

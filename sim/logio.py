@@ -23,6 +23,7 @@ for every format, so a log gives the same message whether it is stored as CSV, P
 
 from __future__ import annotations
 
+import codecs
 import csv
 import difflib
 import json
@@ -61,6 +62,10 @@ UNIT_ALIASES: dict[str, str] = {
     **{alias: "N·m" for alias in ("N*m", "N.m", "Nm", "N m", "N⋅m")},
     **{alias: "°C" for alias in ("degC", "deg C", "℃")},
 }
+
+# A number in text: an ASCII decimal (sign, digits, optional fraction and exponent) or, in any case,
+# 'nan', 'inf', 'infinity'; spaces and tabs around it are ignored. No '_', no non-ASCII digits or spaces.
+NUMBER = re.compile(r"[ \t]*[+-]?(?:(?:[0-9]+\.?[0-9]*|\.[0-9]+)(?:[eE][+-]?[0-9]+)?|(?i:inf|infinity|nan))[ \t]*")
 
 PARQUET_UNITS_KEY = b"torquebed.units"
 PARQUET_META_KEY = b"torquebed.meta"
@@ -308,22 +313,17 @@ def read_log(path: str | Path, *, joint: str = "hinge", max_jitter: float = 0.05
 
 def _read_csv(path: Path) -> _Raw:
     side = sidecar_path(path)
-    declared: dict[str, str] = {}
-    if side.exists():
-        try:
-            declared = json.loads(side.read_text(encoding="utf-8"))
-        except json.JSONDecodeError as err:
-            raise LogError(f"{side.name}: not valid JSON ({err})") from None
-        if not (isinstance(declared, dict) and all(isinstance(k, str) and isinstance(v, str)
-                                                   for k, v in declared.items())):
-            raise LogError(f"{side.name} must map column names to unit strings, "
-                           f'e.g. {{"tau_flexure": "N·m"}}')
-    with path.open(newline="", encoding="utf-8-sig") as fh:  # -sig: skip the byte-order mark Excel writes
-        reader = csv.reader(fh)
-        header = [name.strip() for name in next(reader, [])]
-        first = next(reader, None)
+    declared = _read_sidecar(side) if side.exists() else {}
+    encoding = _text_encoding(path)
+    head = _csv_rows(path, encoding)
+    header = [name.strip() for name in next(head, [])]
+    first = next(head, None)
+    head.close()
     if not header:
         raise LogError(f"{path.name} is empty; the first row must name the columns", row=1, path=path)
+    if any("\0" in name for name in header):
+        raise LogError("the header row holds NUL characters: is the file UTF-16 without a byte-order mark? "
+                       "Save it as UTF-8", row=1)
     if len(header) == 1 and (";" in header[0] or "\t" in header[0]):
         sep = "';'" if ";" in header[0] else "tabs"
         raise LogError(f"the header row is one cell {header[0]!r}: the file seems separated by {sep}; "
@@ -336,15 +336,14 @@ def _read_csv(path: Path) -> _Raw:
                            f"and {j + 1})", column=name, row=1)
     if first and not any(_is_number(cell) for cell in first):
         shown = ", ".join(repr(c) for c in first[:4]) + (", ..." if len(first) > 4 else "")
-        raise LogError(f"row {row_of(0)} holds no number ({shown}): a units row? The CSV format has only "
+        raise LogError(f"row 2 holds no number ({shown}): a units row? The CSV format has only "
                        f"the header row; declare units of non-standard columns in {side.name}",
                        row=row_of(0))
     where = f"the sidecar {side.name}"
-    numbers = _csv_numbers(path, header)
+    numbers = _csv_numbers(path, header, encoding)
     if numbers is not None:
         return _Raw(numbers, declared, {}, where)
-    with path.open(newline="", encoding="utf-8-sig") as fh:  # something is wrong: find it cell by cell
-        body = list(csv.reader(fh))[1:]
+    body = list(_csv_rows(path, encoding))[1:]  # something is wrong: find it cell by cell
     while body and not body[-1]:
         body.pop()
     for i, row in enumerate(body):
@@ -355,21 +354,94 @@ def _read_csv(path: Path) -> _Raw:
     return _Raw(dict(zip(header, cells)), declared, {}, where)
 
 
-def _csv_numbers(path: Path, header: list[str]) -> dict[str, np.ndarray] | None:
+def _read_sidecar(side: Path) -> dict[str, str]:
+    """The units a CSV's sidecar declares; a LogError naming the sidecar if it is not a JSON map of strings."""
+    try:
+        text = side.read_text(encoding=_text_encoding(side))
+        return _unit_map(_json_from(text, side.name), side.name)
+    except LogError as err:
+        raise err.located(side) from None
+
+
+def _text_encoding(path: Path) -> str:
+    """The codec that decodes all of ``path``: the one its byte-order mark names, else UTF-8, else cp1252.
+
+    cp1252 (Windows' Western European) reads Latin-1 text the same, bar control characters.
+    """
+    with path.open("rb") as fh:
+        start = fh.read(len(codecs.BOM_UTF8))
+    marked = [(codec, name) for bom, codec, name in _BYTE_ORDER_MARKS if start.startswith(bom)]
+    tried = []
+    for codec, name in marked[:1] or [("utf-8", "UTF-8"), ("cp1252", "cp1252")]:
+        failure = _decode_failure(path, codec)
+        if failure is None:
+            return codec
+        tried.append((name, *failure))
+    raise LogError(f"{path.name} is not text in " + " or ".join(f"{name} ({where})" for name, where, _ in tried)
+                   + "; save it as UTF-8", row=tried[0][2], path=path)
+
+
+_BYTE_ORDER_MARKS = ((codecs.BOM_UTF8, "utf-8-sig", "UTF-8"), (codecs.BOM_UTF16_LE, "utf-16", "UTF-16 LE"),
+                     (codecs.BOM_UTF16_BE, "utf-16", "UTF-16 BE"))
+_CHUNK_BYTES = 1 << 20
+
+
+def _decode_failure(path: Path, codec: str) -> tuple[str, int | None] | None:
+    """None if ``codec`` decodes all of ``path``; else where it fails and the row (single-byte codecs)."""
+    decoder = codecs.getincrementaldecoder(codec)()
+    ascii_compatible = not codec.startswith("utf-16")
+    offset = 0
+    with path.open("rb") as fh:
+        while True:
+            chunk = fh.read(_CHUNK_BYTES)
+            if chunk and ascii_compatible and chunk.isascii() and not decoder.getstate()[0]:  # the usual log
+                offset += len(chunk)
+                continue
+            try:
+                decoder.decode(chunk, final=not chunk)
+            except UnicodeDecodeError as err:
+                at = offset + max(err.start, 0)
+                if codec.startswith("utf-16"):
+                    return f"{err.reason} at byte {at}", None
+                fh.seek(0)
+                row = fh.read(at).count(b"\n") + 1
+                return f"byte 0x{err.object[err.start]:02X} in row {row}", row
+            if not chunk:
+                return None
+            offset += len(chunk)
+
+
+def _csv_rows(path: Path, encoding: str) -> Iterator[list[str]]:
+    """The CSV file's rows as cells; a LogError naming the row a record that cannot be parsed starts in."""
+    with path.open(newline="", encoding=encoding) as fh:
+        reader = csv.reader(fh)
+        while True:
+            start = reader.line_num + 1
+            try:
+                yield next(reader)
+            except StopIteration:
+                return
+            except csv.Error as err:  # e.g. an unclosed '"' making the rest of the file one cell
+                raise LogError(f"row {start}: not readable as CSV ({err})", row=start) from None
+
+
+def _csv_numbers(path: Path, header: list[str], encoding: str) -> dict[str, np.ndarray] | None:
     """All columns as float64 if every cell is a number (pyarrow: fast, correctly rounded), else None.
 
     Anything unusual (text, empty cells, 'nan', ragged or blank rows) returns None, and the cell-by-cell
-    path reads the file again to name the column and row.
+    path reads the file again to name the column and row. pyarrow accepts no number that :data:`NUMBER`
+    refuses. It reads UTF-8 directly and other encodings through Python's codec.
     """
     import pyarrow as pa
     import pyarrow.csv as pa_csv
 
     try:
         table = pa_csv.read_csv(
-            path, read_options=pa_csv.ReadOptions(column_names=header, skip_rows=1),
+            path, read_options=pa_csv.ReadOptions(column_names=header, skip_rows=1,
+                                                  encoding="utf8" if encoding.startswith("utf-8") else encoding),
             parse_options=pa_csv.ParseOptions(ignore_empty_lines=False),
             convert_options=pa_csv.ConvertOptions(column_types=dict.fromkeys(header, pa.float64())))
-    except pa.ArrowInvalid:
+    except (pa.ArrowInvalid, UnicodeDecodeError):
         return None
     if any(column.null_count for column in table.columns):
         return None
@@ -604,7 +676,9 @@ def _is_number(cell: Any) -> bool:
 
 def _cell_to_float(cell: Any) -> float:
     if isinstance(cell, str):
-        return float(cell.strip())  # float() rejects '' and text; accepts 'nan'/'inf', caught as non-finite later
+        if not NUMBER.fullmatch(cell):
+            raise ValueError(cell)
+        return float(cell)  # 'nan' and 'inf' are refused later, as non-finite
     if isinstance(cell, (bool, np.bool_)) or cell is None:
         raise TypeError(type(cell).__name__)
     array = np.asarray(cell)
@@ -617,11 +691,8 @@ def _to_float(name: str, values: Any) -> np.ndarray:
     """The column as float64, or a LogError naming the first cell that is not a number."""
     if isinstance(values, np.ndarray) and values.dtype.kind in "iuf":
         return values.astype(np.float64)
-    if all(isinstance(cell, str) for cell in values):
-        try:  # fast path: NumPy parses text with correct rounding, like float()
-            return np.array([cell.strip() for cell in values], dtype=np.float64)
-        except ValueError:
-            pass
+    if all(isinstance(cell, str) and NUMBER.fullmatch(cell) for cell in values):
+        return np.array(values, dtype=np.float64)  # NumPy parses text with correct rounding, like float()
     out = np.empty(len(values))
     for i, cell in enumerate(values):
         try:

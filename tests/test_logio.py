@@ -609,3 +609,108 @@ def test_a_dictionary_encoded_parquet_column_reads_as_its_values(tmp_path):
     q = _columns()["q"]
     log = read_log(_parquet_with(tmp_path, q=pa.array(q).dictionary_encode()))
     assert np.array_equal(log["q"], q)
+
+
+# ----------------------------------------------------------------------------------------- CSV encodings
+
+
+def _csv_text() -> str:
+    """The minimal log with a non-standard column 'T_gehäuse' in °C, as CSV text (declared in a sidecar)."""
+    rows = [row + ["25.5"] for row in minimal_rows()]
+    rows[0][-1] = "T_gehäuse"
+    return "".join(",".join(row) + "\r\n" for row in rows)
+
+
+@pytest.mark.parametrize("encoding", ["latin-1", "cp1252", "utf-8-sig", "utf-16", "utf-16-be"])
+def test_a_csv_in_another_encoding_reads_the_same_log(tmp_path, encoding):
+    """Latin-1/cp1252 (no byte-order mark), UTF-8 with one, and UTF-16 with one read like UTF-8."""
+    (tmp_path / "utf8.csv").write_bytes(_csv_text().encode("utf-8"))
+    bom = "\ufeff" if encoding == "utf-16-be" else ""  # the other codecs write their byte-order mark
+    (tmp_path / "other.csv").write_bytes((bom + _csv_text()).encode(encoding))
+    for stem in ("utf8", "other"):
+        (tmp_path / f"{stem}.units.json").write_text('{"T_gehäuse": "°C"}', encoding="utf-8")
+    assert_same(read_log(tmp_path / "utf8.csv"), read_log(tmp_path / "other.csv"))
+    assert read_log(tmp_path / "other.csv").units["T_gehäuse"] == "°C"
+
+
+def test_a_cp1252_sidecar_is_read(tmp_path):
+    """A sidecar saved by a Windows editor (cp1252) gives the same units."""
+    rows = minimal_rows()
+    write_rows(tmp_path / "run.csv", [rows[0] + ["T_board"]] + [row + ["25"] for row in rows[1:]])
+    (tmp_path / "run.units.json").write_bytes('{"T_board": "°C"}'.encode("cp1252"))
+    assert read_log(tmp_path / "run.csv").units["T_board"] == "°C"
+
+
+def test_a_tab_separated_utf16_excel_export_says_tabs_and_names_the_file(tmp_path):
+    """Excel's 'Unicode text' export (UTF-16 LE with a byte-order mark, tabs) gets the separator message."""
+    text = "".join("\t".join(row) + "\r\n" for row in minimal_rows())
+    (tmp_path / "export.csv").write_bytes(text.encode("utf-16"))
+    with pytest.raises(LogError, match=r"^export\.csv: the header row is one cell .*separated by tabs"):
+        read_log(tmp_path / "export.csv")
+
+
+def test_a_csv_no_accepted_encoding_decodes_names_the_encodings_tried(tmp_path):
+    """Bytes that are neither UTF-8 nor cp1252 (0x81 is undefined in cp1252) are refused naming both and the row."""
+    rows = minimal_rows()
+    data = ("\n".join(",".join(row) for row in rows) + "\n").encode()
+    data = data.replace(b"0.3", b"0.3\x81\xb0", 1)
+    (tmp_path / "run.csv").write_bytes(data)
+    with pytest.raises(LogError, match=r"^run\.csv is not text in UTF-8 \(byte 0x81 in row 5\) or cp1252 \(byte "
+                                       r"0x81 in row 5\)") as err:
+        read_log(tmp_path / "run.csv")
+    assert err.value.row == 5
+
+
+def test_a_utf16_file_with_an_odd_byte_count_is_refused_naming_the_encoding(tmp_path):
+    """A byte-order mark fixes the encoding: a cut UTF-16 file is a LogError naming UTF-16, not a crash."""
+    (tmp_path / "run.csv").write_bytes(_csv_text().encode("utf-16")[:-1])
+    with pytest.raises(LogError, match=r"^run\.csv is not text in UTF-16 "):
+        read_log(tmp_path / "run.csv")
+
+
+def test_an_unclosed_quote_is_a_logerror_naming_the_row(tmp_path):
+    """A stray '"' makes the rest of the file one cell; past the csv module's field limit that is a LogError."""
+    rows = minimal_rows(30_000)
+    rows[3][1] = '"0.3'
+    (tmp_path / "run.csv").write_text("\n".join(",".join(row) for row in rows) + "\n")
+    with pytest.raises(LogError, match=r"^run\.csv: row 4: "):
+        read_log(tmp_path / "run.csv")
+
+
+@pytest.mark.parametrize("text", [b"\x81\xff", b"[" * 100_000, b'{"q_extra": 3}', b'["m"]', b"{"])
+def test_a_bad_sidecar_is_a_logerror_naming_the_sidecar(tmp_path, text):
+    """A sidecar that is undecodable, not JSON, or not an object of unit strings names run.units.json."""
+    write_rows(tmp_path / "run.csv", minimal_rows())
+    (tmp_path / "run.units.json").write_bytes(text)
+    with pytest.raises(LogError, match=r"^run\.units\.json") as err:
+        read_log(tmp_path / "run.csv")
+    assert err.value.path == tmp_path / "run.units.json"
+
+
+# ---------------------------------------------------------------------------------------------- numbers
+
+
+@pytest.mark.parametrize("cell", ["1_000", "１", "٣", "\xa01", "1\u3000", "\x0b1", "0x10", "1e5_0"])
+@pytest.mark.parametrize("fmt", ["csv", "parquet"])
+def test_numbers_are_ascii_decimals_not_whatever_float_accepts(tmp_path, fmt, cell):
+    """'1_000', full-width or Arabic-Indic digits and non-ASCII spaces are refused, naming column and row."""
+    rows = minimal_rows()
+    rows[1 + 3][2] = cell
+    if fmt == "csv":
+        write_rows(tmp_path / "run.csv", rows)
+    else:
+        columns = _columns([row[:2] for row in rows])
+        pq.write_table(pa.table({**columns, "q": pa.array([row[2] for row in rows[1:]])}), tmp_path / "run.parquet")
+    with pytest.raises(LogError, match=rf"column 'q', row 5: {re.escape(repr(cell))} is not a number") as err:
+        read_log(tmp_path / f"run.{fmt}")
+    assert (err.value.column, err.value.row) == ("q", 5)
+
+
+@pytest.mark.parametrize("blank_lines", ["", "\n\n"], ids=["fast path", "cell by cell"])
+def test_spaces_and_tabs_around_numbers_and_any_decimal_spelling_are_accepted(tmp_path, blank_lines):
+    """' 1', '\\t2 ', '+.5', '5.', '1E+2' and '-0' are numbers on both reading paths."""
+    rows = minimal_rows(6)
+    for k, cell in enumerate([" 1", "\t2 ", "+.5", "5.", "1E+2", "-0"]):
+        rows[1 + k][2] = cell
+    (tmp_path / "run.csv").write_text("\n".join(",".join(row) for row in rows) + "\n" + blank_lines)
+    assert read_log(tmp_path / "run.csv")["q"].tolist() == [1.0, 2.0, 0.5, 5.0, 100.0, -0.0]

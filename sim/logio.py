@@ -12,9 +12,14 @@ the format; this module is its implementation.
 ``.parquet``       one float64 column per signal; units and meta as JSON in the schema metadata
                    (keys ``torquebed.units`` and ``torquebed.meta``).
 ``.mat``           one variable per column (an N x 1 double), a ``units`` struct (field = column, value = unit)
-                   and a ``meta`` char array holding JSON. v5/v7 files are read by ``scipy.io.loadmat``; v7.3
-                   (HDF5) files need ``h5py``.
+                   and a ``meta`` char array holding JSON. v4 and v5/v7 files are checked element by element
+                   (:mod:`sim.matcheck`) and ``scipy.io.loadmat`` reads what was checked; v7.3 (HDF5) files need
+                   ``h5py`` and are read in a child process (``sim/_mat73.py``), so that a crash of libhdf5
+                   is a :class:`LogError`.
 =================  ==========================================================================================
+
+A CSV file or sidecar may be UTF-8, UTF-16 with a byte-order mark, or cp1252; text cells are numbers only if
+they match :data:`NUMBER`.
 
 Rows in error messages are numbered as a spreadsheet shows the CSV file: the header is row 1, so the first
 sample is row 2 and sample ``k`` (1-based, MATLAB's ``q(k)``) is row ``k + 1``. The same numbering is used
@@ -26,9 +31,16 @@ from __future__ import annotations
 import codecs
 import csv
 import difflib
+import importlib.util
+import io
 import json
 import math
+import os
+import pickle
 import re
+import signal
+import subprocess
+import sys
 import warnings
 from collections.abc import Callable, Iterator, Sequence
 from contextlib import contextmanager
@@ -38,6 +50,7 @@ from typing import IO, Any
 
 import numpy as np
 
+from sim.matcheck import MatStructureError, checked_mat
 from sim.runlog import STANDARD_UNITS, RunLog
 
 JOINTS = ("hinge", "slide")
@@ -73,6 +86,8 @@ MAT_RESERVED = ("units", "meta")
 _MATLAB_NAME = re.compile(r"[A-Za-z][A-Za-z0-9_]{0,62}")  # MATLAB's isvarname, namelengthmax = 63
 _HDF5_SIGNATURE = b"\x89HDF\r\n\x1a\n"
 _HDF5_USERBLOCK = 512  # a v7.3 .mat is HDF5 behind MATLAB's 512-byte header
+_MAT73_SCRIPT = Path(__file__).with_name("_mat73.py")
+MAT73_TIMEOUT_S = 300.0  # a v7.3 file's parser (a child process) taking longer is stopped and the file refused
 
 
 class LogError(ValueError):
@@ -457,7 +472,10 @@ def _read_parquet(path: Path) -> _Raw:
     except (pa.ArrowException, OSError) as err:  # truncated or corrupt: ArrowInvalid, OSError, ...
         detail = re.sub(r" input source '[^']*'", "", str(err))
         raise LogError(f"{path.name} is not a readable Parquet file: {detail}", path=path) from None
-    names = table.column_names
+    try:
+        names = table.column_names
+    except UnicodeDecodeError as err:
+        raise LogError(f"a column name is not UTF-8 text ({err})") from None
     for j, name in enumerate(names):
         if name in names[:j]:
             raise LogError(f"column {name!r} appears twice", column=name)
@@ -491,22 +509,16 @@ def _parquet_column(name: str, column: Any) -> Any:
 
 
 def _read_mat(path: Path) -> _Raw:
-    from scipy.io import loadmat
-    from scipy.io.matlab import MatReadError, matfile_version
-
     with path.open("rb") as fh:
         head = fh.read(_HDF5_USERBLOCK + len(_HDF5_SIGNATURE))
-    if _HDF5_SIGNATURE in (head[:len(_HDF5_SIGNATURE)], head[_HDF5_USERBLOCK:]):
-        variables = _read_mat73(path)
-    else:
-        try:
-            major = matfile_version(str(path))[0]
-        except (MatReadError, ValueError) as err:
-            raise LogError(f"{path.name} is not a MATLAB .mat file: {err}", path=path) from None
-        if major == 2:
-            raise LogError(f"{path.name} has a MATLAB v7.3 header but no HDF5 data after it; is it truncated?",
-                           path=path)
-        variables = {k: v for k, v in loadmat(str(path), simplify_cells=True).items() if not k.startswith("__")}
+        if _HDF5_SIGNATURE in (head[:len(_HDF5_SIGNATURE)], head[_HDF5_USERBLOCK:]):
+            variables = _read_mat73(path)
+        else:
+            try:
+                content = checked_mat(fh, os.fstat(fh.fileno()).st_size)
+            except MatStructureError as err:
+                raise LogError(str(err)) from None
+            variables = _loadmat(content)
     units = variables.pop("units", None)
     meta_text = variables.pop("meta", None)
     declared = _mat_units(units)
@@ -519,40 +531,70 @@ def _read_mat(path: Path) -> _Raw:
     return _Raw(columns, declared, meta, "the 'units' struct")
 
 
-def _read_mat73(path: Path) -> dict[str, Any]:
-    """Variables of a v7.3 (HDF5) .mat as loadmat(simplify_cells=True) gives them: vectors, str, dict."""
+def _loadmat(content: bytes) -> dict[str, Any]:
+    """The variables of a v4 or v5/v7 file as :func:`~sim.matcheck.checked_mat` passed it, read by scipy."""
+    from scipy.io import loadmat
+
     try:
-        import h5py
-    except ImportError:
-        raise LogError(f"{path.name} is a MATLAB v7.3 (HDF5) file; reading it needs h5py "
-                       f"(pip install h5py), or re-save it as v7 in MATLAB: save('{path.name}', '-v7')", path=path) from None
+        variables = loadmat(io.BytesIO(content), simplify_cells=True)
+    except Exception as err:  # what check_mat leaves to scipy fails in Python (e.g. characters that do not decode)
+        raise LogError(f"scipy cannot read it: {type(err).__name__}: {err}") from None
+    return {k: v for k, v in variables.items() if not k.startswith("__")}
 
-    def value(obj: Any) -> Any:
-        cls = obj.attrs.get("MATLAB_class", b"")
-        cls = cls.decode() if isinstance(cls, bytes) else str(cls)
-        if isinstance(obj, h5py.Group):  # a struct: one member per field, in MATLAB's order if recorded
-            return {key: value(obj[key]) for key in fields(obj) or list(obj)}
-        data = obj[()]
-        if obj.attrs.get("MATLAB_empty", 0):
-            return "" if cls == "char" else np.zeros(0)
-        if cls == "char":
-            return "".join(map(chr, np.ravel(data, order="F")))  # MATLAB stores chars as UTF-16 code units
-        if cls == "cell":  # references to the cells' contents
-            cells = np.empty(data.shape, dtype=object)
-            for index in np.ndindex(data.shape):
-                cells[index] = value(obj.file[data[index]])
-            return cells.T
-        return np.asarray(data).T  # HDF5 holds MATLAB arrays transposed; .T restores MATLAB's shape
 
-    def fields(group: Any) -> list[str]:
-        names = group.attrs.get("MATLAB_fields")
-        return [] if names is None else [b"".join(np.ravel(f)).decode() for f in names]
-
-    with h5py.File(path, "r") as fh:
-        variables = {name: value(fh[name]) for name in fh if not name.startswith("#")}  # '#refs#': cell data
+def _read_mat73(path: Path) -> dict[str, Any]:
+    """Variables of a v7.3 (HDF5) .mat as loadmat(simplify_cells=True) gives them, read in a child process."""
+    if importlib.util.find_spec("h5py") is None:
+        raise LogError(f"{path.name} is a MATLAB v7.3 (HDF5) file; reading it needs h5py (pip install h5py), "
+                       f"or re-save it as v7 in MATLAB: save('{path.name}', '-v7')", path=path)
+    status, variables = _run_parser(_MAT73_SCRIPT, path)
+    if status != "ok":
+        raise LogError(f"{path.name} is not a readable MATLAB v7.3 (HDF5) file: {variables}", path=path)
     # HDF5 lists names sorted; the column order survives in 'units'
-    order = [name for name in _mat_units(variables.get("units")) if name in variables]
+    try:
+        order = [name for name in _mat_units(variables.get("units")) if name in variables]
+    except LogError:
+        order = []  # _read_mat names what is wrong with 'units'
     return {name: variables[name] for name in order + [name for name in variables if name not in order]}
+
+
+def _run_parser(script: Path, path: Path) -> Any:
+    """What ``python -P script path`` pickles to stdout; a LogError if it crashes, fails or takes too long."""
+    try:
+        done = subprocess.run([sys.executable, "-P", str(script), str(path)], capture_output=True,
+                              stdin=subprocess.DEVNULL, timeout=MAT73_TIMEOUT_S)
+    except subprocess.TimeoutExpired:
+        raise LogError(f"the .mat parser did not finish on {path.name} within MAT73_TIMEOUT_S = "
+                       f"{MAT73_TIMEOUT_S:g} s", path=path) from None
+    if done.returncode < 0:
+        raise LogError(f"the .mat parser crashed on {path.name} ({_signal_name(-done.returncode)})", path=path)
+    try:
+        return _ArrayUnpickler(io.BytesIO(done.stdout)).load()
+    except Exception:  # no or broken output: the parser failed before writing its answer
+        last = (done.stderr.decode(errors="replace").strip().splitlines() or ["no output"])[-1]
+        raise LogError(f"the .mat parser failed on {path.name} (exit code {done.returncode}): {last}",
+                       path=path) from None
+
+
+def _signal_name(number: int) -> str:
+    try:
+        return f"signal {number}, {signal.Signals(number).name}"
+    except ValueError:
+        return f"signal {number}"
+
+
+class _ArrayUnpickler(pickle.Unpickler):
+    """Unpickles builtins and NumPy arrays only: a parser process that a crafted file took over cannot make
+    this process run code."""
+
+    ALLOWED = {(module, name) for core in ("numpy._core", "numpy.core")
+               for module, name in ((f"{core}.multiarray", "_reconstruct"), (f"{core}.multiarray", "scalar"),
+                                    (f"{core}.numeric", "_frombuffer"))} | {("numpy", "ndarray"), ("numpy", "dtype")}
+
+    def find_class(self, module: str, name: str) -> Any:
+        if (module, name) not in self.ALLOWED:
+            raise pickle.UnpicklingError(f"{module}.{name} is not allowed")
+        return super().find_class(module, name)
 
 
 def _mat_units(units: Any) -> dict[str, str]:

@@ -3,11 +3,15 @@
 import csv
 import decimal
 import hashlib
+import importlib.machinery
 import json
 import math
 import re
+import struct
 import sys
+import types
 import warnings
+import zlib
 
 import numpy as np
 import pyarrow as pa
@@ -15,6 +19,7 @@ import pyarrow.parquet as pq
 import pytest
 from scipy.io import loadmat, savemat
 
+import sim.logio
 from sim.logio import (
     MIN_SAMPLES,
     SLIDE_UNITS,
@@ -28,6 +33,7 @@ from sim.logio import (
 from sim.plant import Plant
 from sim.run import run_open_loop
 from sim.runlog import STANDARD_UNITS, RunLog
+from tests.logio_fuzzing import ChildReader
 
 FORMATS = ("csv", "parquet", "mat")
 EDGE_FLOATS = [0.1, 1 / 3, -0.0, 5e-324, 1.7976931348623157e308, -2.2250738585072014e-308, 1e-17]
@@ -714,3 +720,210 @@ def test_spaces_and_tabs_around_numbers_and_any_decimal_spelling_are_accepted(tm
         rows[1 + k][2] = cell
     (tmp_path / "run.csv").write_text("\n".join(",".join(row) for row in rows) + "\n" + blank_lines)
     assert read_log(tmp_path / "run.csv")["q"].tolist() == [1.0, 2.0, 0.5, 5.0, 100.0, -0.0]
+
+
+# ------------------------------------------------------------------------------------------- .mat structure
+
+
+@pytest.fixture(scope="module")
+def child():
+    """read_log in a child process: a file that crashes the reader fails a test instead of ending pytest."""
+    reader = ChildReader()
+    yield reader
+    reader.close()
+
+
+def _plain_mat(tmp_path, name="run.mat", **extra) -> bytes:
+    """An uncompressed v5 .mat of a 5-sample log (time, tau_cmd, q, units, meta) and ``extra`` variables.
+
+    Its first variable, 'time', is at byte 128: tag (8), array flags (16), dimensions (16), name (8), then
+    the tag of its data at byte 176 and the dimensions' values at bytes 160 and 164.
+    """
+    n = 5
+    variables = {"time": 1e-3 * np.arange(n), "tau_cmd": np.zeros(n), "q": np.ones(n),
+                 "units": {"time": "s", "tau_cmd": "N·m", "q": "rad"}, "meta": "{}", **extra}
+    savemat(tmp_path / name, variables, oned_as="column", do_compression=False)
+    return (tmp_path / name).read_bytes()
+
+
+def _patched(tmp_path, data: bytes, at: int, value: int, name="run.mat"):
+    """``data`` with the little-endian uint32 at byte ``at`` set to ``value``, written to ``name``."""
+    path = tmp_path / name
+    path.write_bytes(data[:at] + struct.pack("<I", value) + data[at + 4:])
+    return path
+
+
+def _crashing_mat(tmp_path, compressed: bool):
+    """The 616-byte (uncompressed) .mat whose 'time' data is tagged with type 8, which MAT v5 leaves
+    undefined; scipy 1.17's loadmat looks the type up in a table without a range check and crashes (SIGSEGV)."""
+    data = _plain_mat(tmp_path)
+    if not compressed:
+        return _patched(tmp_path, data, 176, 8)
+    inner = data[128:128 + 8 + struct.unpack_from("<I", data, 132)[0]]
+    inner = inner[:48] + struct.pack("<I", 8) + inner[52:]
+    packed = zlib.compress(inner)
+    path = tmp_path / "run.mat"
+    path.write_bytes(data[:128] + struct.pack("<II", 15, len(packed)) + packed + data[128 + len(inner):])
+    return path
+
+
+@pytest.mark.parametrize("compressed", [False, True], ids=["plain", "compressed"])
+def test_the_mat_that_crashes_scipy_is_a_logerror(tmp_path, child, compressed):
+    """A data element of undefined type 8 is refused before scipy parses the file, naming file and variable."""
+    kind, message = child.read(_crashing_mat(tmp_path, compressed))
+    assert (kind, message) == ("LogError", "run.mat: variable 'time''s real part has data type 8; expected one of "
+                                           "[1, 2, 3, 4, 5, 6, 7, 9, 12, 13]")
+
+
+def test_a_mat_cut_after_its_header_says_so(tmp_path):
+    """A .mat cut at 128 bytes is reported as holding no variables, not as lacking the column 'time'."""
+    data = write_log(small_log(n=8), tmp_path / "whole.mat").read_bytes()
+    (tmp_path / "run.mat").write_bytes(data[:128])
+    with pytest.raises(LogError, match=r"^run\.mat: the file holds no variables after its 128-byte header"):
+        read_log(tmp_path / "run.mat")
+
+
+def _variable_ends(data: bytes) -> set[int]:
+    """Where each top-level variable of a little-endian v5 .mat ends (a cut there leaves a whole file)."""
+    ends, pos = set(), 128
+    while pos < len(data):
+        pos += 8 + struct.unpack_from("<I", data, pos + 4)[0]
+        ends.add(pos)
+    return ends
+
+
+def test_a_mat_cut_anywhere_is_a_logerror_naming_the_file(tmp_path, child):
+    """Every prefix of a compressed and of an uncompressed .mat, except those ending at a variable's end, is
+    refused with a LogError naming the file."""
+    for data in (write_log(small_log(n=8), tmp_path / "whole.mat").read_bytes(), _plain_mat(tmp_path, "p.mat")):
+        whole = _variable_ends(data)
+        for cut in range(0, len(data), 3):
+            (tmp_path / "cut.mat").write_bytes(data[:cut])
+            kind, message = child.read(tmp_path / "cut.mat")
+            expected = ("RunLog", "LogError") if cut in whole else ("LogError",)
+            assert kind in expected and (kind == "RunLog" or message.startswith("cut.mat")), (cut, kind, message)
+
+
+@pytest.mark.parametrize(("at", "value", "message"), [
+    (164, 6, r"variable 'time''s real part holds 40 bytes of 8-byte values; its dimensions \[5, 6\] need 240"),
+    (160, 0x80000000, r"a variable has negative dimensions"),
+    (128, 0, r"the data element at byte 128 has type 0; a variable is miMATRIX"),
+    (132, 0xFFFF_FFF0, r"the variable at byte 128 declares 4294967280 bytes"),
+    (144, 0x11, r"a variable is a MATLAB object"),
+    (144, 0x05, r"variable 'time' is a sparse array"),
+], ids=["dims", "negative", "type", "size", "opaque", "sparse"])
+def test_a_mat_whose_structure_is_inconsistent_is_refused_before_parsing(tmp_path, child, at, value, message):
+    """Dimensions that disagree with the data, bad tags, sizes past the end, classes a log cannot hold."""
+    kind, text = child.read(_patched(tmp_path, _plain_mat(tmp_path), at, value))
+    assert kind == "LogError" and re.search(rf"^run\.mat: {message}", text), text
+
+
+def test_a_struct_with_field_name_length_zero_is_refused(tmp_path, child):
+    """scipy divides by the field name length; zero is refused before."""
+    data = _plain_mat(tmp_path)
+    at = data.index(struct.pack("<HHI", 5, 4, 8))  # 'units': small element, int32, 4 bytes, value 8
+    kind, text = child.read(_patched(tmp_path, data, at + 4, 0))
+    assert (kind, text) == ("LogError", "run.mat: variable 'units''s field name length is 0")
+
+
+def test_a_cell_array_with_dimensions_but_no_cells_is_refused(tmp_path, child):
+    """A 100000 x 100000 cell with one cell's bytes would make scipy allocate 10^10 objects: refused."""
+    cell = np.empty((1, 1), dtype=object)
+    cell[0, 0] = "x"
+    data = _plain_mat(tmp_path, extra=cell)
+    at = data.index(b"extra") - 8 - 8  # the dimensions' values, before the name's small element
+    data = data[:at] + struct.pack("<ii", 100_000, 100_000) + data[at + 8:]
+    (tmp_path / "run.mat").write_bytes(data)
+    kind, text = child.read(tmp_path / "run.mat")
+    assert kind == "LogError" and "variable 'extra' declares 10000000000 cells or fields" in text, text
+
+
+def test_mat_arrays_nested_too_deep_are_refused(tmp_path, child):
+    """Cells in cells 12 deep (the C stack of scipy's recursive reader is the limit otherwise) are refused."""
+    nested = np.zeros(1)
+    for _ in range(12):
+        cell = np.empty((1, 1), dtype=object)
+        cell[0, 0] = nested
+        nested = cell
+    kind, text = child.read(_mat_log_file(tmp_path, extra=nested))
+    assert kind == "LogError" and "nests arrays deeper than 8 levels" in text, text
+
+
+def test_a_mat_v4_log_is_read_and_a_cut_one_refused(tmp_path, child):
+    """MATLAB v4 files are checked the same way: a whole one reads, every prefix is a LogError."""
+    columns = _columns()
+    savemat(tmp_path / "v4.mat", columns, oned_as="column", format="4")
+    log = read_log(tmp_path / "v4.mat")
+    assert all(np.array_equal(log[name], values) for name, values in columns.items())
+    data = (tmp_path / "v4.mat").read_bytes()
+    for cut in range(1, len(data), 11):
+        (tmp_path / "cut.mat").write_bytes(data[:cut])
+        kind, text = child.read(tmp_path / "cut.mat")
+        assert kind == "LogError" and text.startswith("cut.mat"), (cut, text)
+
+
+def _fake_h5py(monkeypatch):
+    """Make h5py look installed to the parent process (the parser script is replaced in these tests)."""
+    module = types.ModuleType("h5py")
+    module.__spec__ = importlib.machinery.ModuleSpec("h5py", None)
+    monkeypatch.setitem(sys.modules, "h5py", module)
+
+
+def _v73_file(tmp_path):
+    path = tmp_path / "rig.mat"
+    path.write_bytes(_mat73_header() + b"\x89HDF\r\n\x1a\n" + bytes(64))
+    return path
+
+
+def test_a_crash_of_the_v73_parser_is_a_logerror_naming_the_signal(tmp_path, monkeypatch):
+    """The v7.3 parser runs in a child process; one killed by SIGSEGV gives a LogError, not a dead process."""
+    script = tmp_path / "crash.py"
+    script.write_text("import os, signal\nos.kill(os.getpid(), signal.SIGSEGV)\n")
+    monkeypatch.setattr(sim.logio, "_MAT73_SCRIPT", script)
+    _fake_h5py(monkeypatch)
+    with pytest.raises(LogError, match=r"^the \.mat parser crashed on rig\.mat \(signal 11, SIGSEGV\)$"):
+        read_log(_v73_file(tmp_path))
+
+
+def test_a_v73_parser_that_takes_too_long_is_stopped(tmp_path, monkeypatch):
+    """A parser still running after MAT73_TIMEOUT_S is killed and the file refused."""
+    script = tmp_path / "hang.py"
+    script.write_text("import time\ntime.sleep(60)\n")
+    monkeypatch.setattr(sim.logio, "_MAT73_SCRIPT", script)
+    monkeypatch.setattr(sim.logio, "MAT73_TIMEOUT_S", 0.5)
+    _fake_h5py(monkeypatch)
+    with pytest.raises(LogError, match=r"^the \.mat parser did not finish on rig\.mat within MAT73_TIMEOUT_S"):
+        read_log(_v73_file(tmp_path))
+
+
+def test_the_v73_parser_answer_cannot_run_code(tmp_path, monkeypatch):
+    """Only arrays and builtins are unpickled from the parser: a pickle calling os.system is refused."""
+    script = tmp_path / "evil.py"
+    marker = tmp_path / "ran"
+    script.write_text("import os, pickle, sys\n"
+                      "class Evil:\n"
+                      f"    def __reduce__(self): return (os.system, ('touch {marker}',))\n"
+                      "sys.stdout.buffer.write(pickle.dumps(('ok', Evil())))\n")
+    monkeypatch.setattr(sim.logio, "_MAT73_SCRIPT", script)
+    _fake_h5py(monkeypatch)
+    with pytest.raises(LogError, match=r"^the \.mat parser failed on rig\.mat"):
+        read_log(_v73_file(tmp_path))
+    assert not marker.exists()
+
+
+def test_an_hdf5_file_h5py_cannot_read_is_a_logerror(tmp_path):
+    """A v7.3 header followed by a broken HDF5 file: h5py's error becomes a LogError naming the file."""
+    pytest.importorskip("h5py")
+    with pytest.raises(LogError, match=r"^rig\.mat is not a readable MATLAB v7\.3 \(HDF5\) file: OSError"):
+        read_log(_v73_file(tmp_path))
+
+
+def test_a_parquet_column_name_that_is_not_utf8_is_refused(tmp_path):
+    """Parquet stores names as bytes; one that is not UTF-8 is a LogError naming the file."""
+    data = bytearray(write_log(small_log(n=8), tmp_path / "run.parquet").read_bytes())
+    for start in range(len(data)):  # every copy of the name: in the footer and in the Arrow schema
+        if data[start:start + 7] == b"current":
+            data[start] = 0xFF
+    (tmp_path / "run.parquet").write_bytes(bytes(data))
+    with pytest.raises(LogError, match=r"^run\.parquet: a column name is not UTF-8 text"):
+        read_log(tmp_path / "run.parquet")

@@ -9,7 +9,7 @@ truncation, insertion, deletion, duplication, splicing from another seed, re-enc
 inside a compressed .mat element), then reads it in a child process, so that a crash of native code is
 counted rather than fatal. The script prints the number of cases and the outcomes by kind and exits 1 if
 any read ended in an exception other than ``LogError``, a LogError not naming its file, a signal, or a
-changed input file.
+changed input file. The most frequent LogError messages of each format follow the counts.
 """
 
 from __future__ import annotations
@@ -313,6 +313,7 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
     rng = random.Random(args.seed)
     outcomes: Counter = Counter()
+    messages: Counter = Counter()
     examples: dict[str, str] = {}
     reader = ChildReader()
     with tempfile.TemporaryDirectory() as seeds_dir, tempfile.TemporaryDirectory() as cases_dir:
@@ -326,12 +327,19 @@ def main(argv: list[str] | None = None) -> int:
             kind, detail = run_case(case, rng.choice(every).read_bytes(), Path(cases_dir), reader)
             key = kind if is_fine(kind) else f"{kind}: {kind_of(detail)}"
             outcomes[(fmt, key)] += 1
+            if kind == "LogError":
+                messages[(fmt, kind_of(detail.split(": ", 1)[-1]))] += 1
             if not is_fine(kind):
                 examples.setdefault(key, f"{case}\n{detail}")
     reader.close()
     print(f"{outcomes.total()} cases in {args.seconds:g} s (seed {args.seed})")
     for (fmt, key), count in sorted(outcomes.items()):
         print(f"  {fmt:8s} {count:6d}  {key}")
+    print("most frequent LogError messages (numbers and quoted text blanked):")
+    for fmt in FORMATS:
+        for (_, message), count in sorted(((k, c) for k, c in messages.items() if k[0] == fmt),
+                                          key=lambda item: -item[1])[:6]:
+            print(f"  {fmt:8s} {count:6d}  {message}")
     for key, example in examples.items():
         print(f"\n--- {key}\n{example}")
     return 1 if examples else 0

@@ -351,7 +351,7 @@ def _read_csv(path: Path) -> _Raw:
                            f"and {j + 1})", column=name, row=1)
     if first and not any(_is_number(cell) for cell in first):
         shown = ", ".join(repr(c) for c in first[:4]) + (", ..." if len(first) > 4 else "")
-        raise LogError(f"row 2 holds no number ({shown}): a units row? The CSV format has only "
+        raise LogError(f"row {row_of(0)} holds no number ({shown}): a units row? The CSV format has only "
                        f"the header row; declare units of non-standard columns in {side.name}",
                        row=row_of(0))
     where = f"the sidecar {side.name}"
@@ -412,10 +412,11 @@ def _decode_failure(path: Path, codec: str) -> tuple[str, int | None] | None:
             if chunk and ascii_compatible and chunk.isascii() and not decoder.getstate()[0]:  # the usual log
                 offset += len(chunk)
                 continue
+            pending = len(decoder.getstate()[0])  # bytes of the previous chunk the decoder still holds
             try:
                 decoder.decode(chunk, final=not chunk)
             except UnicodeDecodeError as err:
-                at = offset + max(err.start, 0)
+                at = offset - pending + err.start
                 if codec.startswith("utf-16"):
                     return f"{err.reason} at byte {at}", None
                 fh.seek(0)
@@ -468,14 +469,15 @@ def _read_parquet(path: Path) -> _Raw:
     import pyarrow.parquet as pq
 
     try:
-        table = pq.read_table(path)
+        parquet = pq.ParquetFile(path)
+        _check_parquet_rows(parquet.metadata)
+        table = parquet.read()
     except (pa.ArrowException, OSError) as err:  # truncated or corrupt: ArrowInvalid, OSError, ...
         detail = re.sub(r" input source '[^']*'", "", str(err))
         raise LogError(f"{path.name} is not a readable Parquet file: {detail}", path=path) from None
-    try:
-        names = table.column_names
-    except UnicodeDecodeError as err:
+    except UnicodeDecodeError as err:  # pyarrow decodes column names as it reads
         raise LogError(f"a column name is not UTF-8 text ({err})") from None
+    names = table.column_names
     for j, name in enumerate(names):
         if name in names[:j]:
             raise LogError(f"column {name!r} appears twice", column=name)
@@ -485,6 +487,26 @@ def _read_parquet(path: Path) -> _Raw:
     meta = _json_from(metadata.get(PARQUET_META_KEY), "schema metadata 'torquebed.meta'")
     columns = {name: _parquet_column(name, table.column(name)) for name in names}
     return _Raw(columns, declared, meta, "the schema metadata 'torquebed.units'")
+
+
+def _check_parquet_rows(metadata: Any) -> None:
+    """Refuse row counts that could not be read into memory: pyarrow allocates for them before reading.
+
+    A corrupt footer can declare 2^40 rows in a file of a few hundred bytes; the reader would need the
+    declared rows times the columns times 8 bytes twice over (pyarrow's buffers and the float64 columns).
+    """
+    groups = [metadata.row_group(i).num_rows for i in range(metadata.num_row_groups)]
+    rows, columns = sum(groups), max(metadata.num_columns, 1)
+    needed = 16 * rows * columns
+    if min(groups, default=0) < 0 or needed > _memory_bytes():
+        raise LogError(f"the file declares {rows} rows of {columns} column(s) ({needed / 1e9:.3g} GB to read), "
+                       f"more than this machine's memory ({_memory_bytes() / 1e9:.3g} GB): a corrupt footer, "
+                       f"or a log to split")
+
+
+def _memory_bytes() -> int:
+    """Physical memory of this machine."""
+    return os.sysconf("SC_PHYS_PAGES") * os.sysconf("SC_PAGE_SIZE")
 
 
 def _parquet_column(name: str, column: Any) -> Any:

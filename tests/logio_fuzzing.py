@@ -18,6 +18,7 @@ import argparse
 import codecs
 import multiprocessing
 import random
+import resource
 import re
 import struct
 import sys
@@ -38,6 +39,7 @@ INTERESTING_U32 = (0, 1, 2, 7, 8, 9, 14, 15, 16, 0x7F, 0x80, 0xFF, 0xFFFF, 0x100
                    0xFFFFFFFF)
 ENCODINGS = ("utf-16", "utf-16-le", "utf-16-be", "cp1252", "latin-1", "utf-8-sig", "utf-32")
 READ_TIMEOUT_S = 60.0
+MEMORY_LIMIT = 8 << 30  # bytes of address space for the reading child
 
 Op = tuple[str, int, int, bytes]  # (kind, position, size or value, payload)
 
@@ -195,7 +197,8 @@ def read_outcome(path: str, joint: str = "hinge") -> tuple[str, str]:
     return "RunLog", ""
 
 
-def _serve(conn) -> None:
+def _serve(conn, memory_limit: int) -> None:
+    resource.setrlimit(resource.RLIMIT_AS, (memory_limit, memory_limit))  # a MemoryError, not the OOM killer
     while True:
         try:
             request = conn.recv()
@@ -205,16 +208,20 @@ def _serve(conn) -> None:
 
 
 class ChildReader:
-    """``read_outcome`` in a long-lived child process; a crash gives ('signal', name) and a fresh child."""
+    """``read_outcome`` in a long-lived child process; a crash gives ('signal', name) and a fresh child.
 
-    def __init__(self, timeout_s: float = READ_TIMEOUT_S) -> None:
-        self.timeout_s = timeout_s
+    The child's address space is limited to ``memory_limit`` bytes, so that a reader allocating without
+    bound fails with MemoryError in the child rather than drawing the kernel's OOM killer on the machine.
+    """
+
+    def __init__(self, timeout_s: float = READ_TIMEOUT_S, memory_limit: int = MEMORY_LIMIT) -> None:
+        self.timeout_s, self.memory_limit = timeout_s, memory_limit
         self._context = multiprocessing.get_context("spawn")
         self._start()
 
     def _start(self) -> None:
         self._conn, child_conn = self._context.Pipe()
-        self._process = self._context.Process(target=_serve, args=(child_conn,), daemon=True)
+        self._process = self._context.Process(target=_serve, args=(child_conn, self.memory_limit), daemon=True)
         self._process.start()
         child_conn.close()
 

@@ -927,3 +927,25 @@ def test_a_parquet_column_name_that_is_not_utf8_is_refused(tmp_path):
     (tmp_path / "run.parquet").write_bytes(bytes(data))
     with pytest.raises(LogError, match=r"^run\.parquet: a column name is not UTF-8 text"):
         read_log(tmp_path / "run.parquet")
+
+
+def _varint(value: int) -> bytes:
+    """Thrift's compact protocol integer (little-endian base 128)."""
+    out = bytearray()
+    while True:
+        out.append(value & 0x7F | (0x80 if value >> 7 else 0))
+        value >>= 7
+        if not value:
+            return bytes(out)
+
+
+def test_a_parquet_footer_declaring_2_to_the_40_rows_is_refused_before_reading(tmp_path, child):
+    """Every 8 (an i64 field, zigzag 16) in the footer set to 2^40: the row counts are refused up front
+    (pyarrow would allocate terabytes for them, and the kernel would kill the process on first touch)."""
+    data = write_log(small_log(n=8), tmp_path / "whole.parquet").read_bytes()
+    length = struct.unpack("<I", data[-8:-4])[0]
+    footer = data[-8 - length:-8].replace(b"\x16\x10", b"\x16" + _varint(2 ** 40 << 1))
+    (tmp_path / "run.parquet").write_bytes(data[:-8 - length] + footer + struct.pack("<I", len(footer)) + b"PAR1")
+    kind, text = child.read(tmp_path / "run.parquet")
+    assert (kind, re.sub(r"\(\d.*", "", text)) == (
+        "LogError", "run.parquet: the file declares 1099511627776 rows of 19 column(s) ")

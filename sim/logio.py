@@ -537,7 +537,7 @@ def _read_mat(path: Path) -> _Raw:
             variables = _read_mat73(path)
         else:
             try:
-                content = checked_mat(fh, os.fstat(fh.fileno()).st_size)
+                content = checked_mat(fh, os.fstat(fh.fileno()).st_size, max_bytes=_memory_bytes() // 4)
             except MatStructureError as err:
                 raise LogError(str(err)) from None
             variables = _loadmat(content)

@@ -49,11 +49,12 @@ class MatStructureError(ValueError):
     """A .mat file that is not one :func:`check_mat` vouches for; the message says what and where."""
 
 
-def checked_mat(fh: BinaryIO, size: int) -> bytes:
+def checked_mat(fh: BinaryIO, size: int, max_bytes: int) -> bytes:
     """The v4 or v5/v7 .mat file open in ``fh`` (``size`` bytes) as checked, or MatStructureError.
 
     The bytes returned are the ones checked, for scipy to parse: a v4 file as it is, a v5 file with every
-    variable uncompressed (so scipy does not inflate it a second time). The version is taken as
+    variable uncompressed (so scipy does not inflate it a second time); more than ``max_bytes`` of them are
+    refused (a few megabytes of zlib data can inflate to gigabytes). The version is taken as
     ``scipy.io.matlab.matfile_version`` takes it: a zero byte among the first four makes a v4 file,
     otherwise bytes 124-127 give the version and byte order.
     """
@@ -64,6 +65,8 @@ def checked_mat(fh: BinaryIO, size: int) -> bytes:
     if not any(head[:20]):
         raise MatStructureError("the file's first 20 bytes are zero")
     if 0 in head[:4]:
+        if size > max_bytes:
+            raise MatStructureError(f"the file has {size} bytes; at most {max_bytes} are read")
         _check_v4(fh, size)
         fh.seek(0)
         return fh.read()
@@ -75,14 +78,15 @@ def checked_mat(fh: BinaryIO, size: int) -> bytes:
     if marks not in V5_MARKS:
         raise MatStructureError(f"bytes 124-127 are {marks!r}, not a MATLAB 5 version and byte-order mark "
                                 f"(b'\\x00\\x01IM')")
-    return head + b"".join(_check_v5(fh, size, V5_MARKS[marks]))
+    return head + b"".join(_check_v5(fh, size, V5_MARKS[marks], [max_bytes - HEADER_BYTES, max_bytes]))
 
 
 # ------------------------------------------------------------------------------------------------ v5, v7
 
 
-def _check_v5(fh: BinaryIO, size: int, order: str) -> list[bytes]:
-    """The variables after the header, each an uncompressed miMATRIX element."""
+def _check_v5(fh: BinaryIO, size: int, order: str, budget: list[int]) -> list[bytes]:
+    """The variables after the header, each an uncompressed miMATRIX element; ``budget`` is [bytes left,
+    limit], drawn down as they are read."""
     pos, names, arrays, elements = HEADER_BYTES, set(), [0], []
     while pos < size:
         if size - pos < 8:
@@ -95,7 +99,8 @@ def _check_v5(fh: BinaryIO, size: int, order: str) -> list[bytes]:
         if not 0 < nbytes <= size - pos - 8:
             raise MatStructureError(f"the variable at byte {pos} declares {nbytes} bytes; {size - pos - 8} follow "
                                     f"(is the file cut short?)")
-        source, declared = _Source(fh, nbytes, compressed=mdtype == MI_COMPRESSED, at=pos), nbytes
+        source, declared = _Source(fh, nbytes, compressed=mdtype == MI_COMPRESSED, at=pos,
+                                  budget=budget), nbytes
         if mdtype == MI_COMPRESSED:
             inner_type, inner_bytes = struct.unpack(order + "II", source.read(8, "the compressed variable"))
             if inner_type != MI_MATRIX or not 0 < inner_bytes <= MAX_ARRAY_BYTES:
@@ -123,8 +128,8 @@ class _Source:
     ``parts`` keeps every byte produced, so that what was checked is what is parsed.
     """
 
-    def __init__(self, fh: BinaryIO, nbytes: int, *, compressed: bool, at: int) -> None:
-        self.fh, self.left, self.at = fh, nbytes, at
+    def __init__(self, fh: BinaryIO, nbytes: int, *, compressed: bool, at: int, budget: list[int]) -> None:
+        self.fh, self.left, self.at, self.budget = fh, nbytes, at, budget
         self.inflate = zlib.decompressobj() if compressed else None
         self.buffer, self.offset, self.pos = b"", 0, 0
         self.parts: list[bytes] = []
@@ -169,6 +174,11 @@ class _Source:
             if self.buffer is None:
                 self.buffer = b""
                 return False
+        self.budget[0] -= len(self.buffer)
+        if self.budget[0] < 0:
+            raise MatStructureError(f"inflating the variable at byte {self.at} passes the limit of "
+                                    f"{self.budget[1]} bytes on a file's content (a zlib stream inflating "
+                                    f"without bound?)")
         self.parts.append(self.buffer)
         return True
 

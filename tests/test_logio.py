@@ -949,3 +949,15 @@ def test_a_parquet_footer_declaring_2_to_the_40_rows_is_refused_before_reading(t
     kind, text = child.read(tmp_path / "run.parquet")
     assert (kind, re.sub(r"\(\d.*", "", text)) == (
         "LogError", "run.parquet: the file declares 1099511627776 rows of 19 column(s) ")
+
+
+def test_a_mat_inflating_past_a_quarter_of_the_memory_is_refused(tmp_path, monkeypatch):
+    """A compressed variable of 16 MB of zeros (a few kB in the file) on a machine of 8 MB: refused while
+    inflating, before scipy reads it. The content read from a .mat is at most a quarter of the memory."""
+    path = tmp_path / "run.mat"
+    savemat(path, {**_columns(), "zeros": np.zeros(2_000_000)}, oned_as="column", do_compression=True)
+    assert path.stat().st_size < 100_000
+    monkeypatch.setattr(sim.logio, "_memory_bytes", lambda: 8_000_000)
+    with pytest.raises(LogError, match=r"^run\.mat: inflating the variable at byte \d+ passes the limit of "
+                                       r"2000000 bytes on a file's content"):
+        read_log(path)

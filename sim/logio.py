@@ -12,9 +12,14 @@ the format; this module is its implementation.
 ``.parquet``       one float64 column per signal; units and meta as JSON in the schema metadata
                    (keys ``torquebed.units`` and ``torquebed.meta``).
 ``.mat``           one variable per column (an N x 1 double), a ``units`` struct (field = column, value = unit)
-                   and a ``meta`` char array holding JSON. v5/v7 files are read by ``scipy.io.loadmat``; v7.3
-                   (HDF5) files need ``h5py``.
+                   and a ``meta`` char array holding JSON. v4 and v5/v7 files are checked element by element
+                   (:mod:`sim.matcheck`) and ``scipy.io.loadmat`` reads what was checked; v7.3 (HDF5) files need
+                   ``h5py`` and are read in a child process (``sim/_mat73.py``), so that a crash of libhdf5
+                   is a :class:`LogError`.
 =================  ==========================================================================================
+
+A CSV file or sidecar may be UTF-8, UTF-16 with a byte-order mark, or cp1252; text cells are numbers only if
+they match :data:`NUMBER`.
 
 Rows in error messages are numbered as a spreadsheet shows the CSV file: the header is row 1, so the first
 sample is row 2 and sample ``k`` (1-based, MATLAB's ``q(k)``) is row ``k + 1``. The same numbering is used
@@ -23,11 +28,19 @@ for every format, so a log gives the same message whether it is stored as CSV, P
 
 from __future__ import annotations
 
+import codecs
 import csv
 import difflib
+import importlib.util
+import io
 import json
 import math
+import os
+import pickle
 import re
+import signal
+import subprocess
+import sys
 import warnings
 from collections.abc import Callable, Iterator, Sequence
 from contextlib import contextmanager
@@ -37,6 +50,7 @@ from typing import IO, Any
 
 import numpy as np
 
+from sim.matcheck import MatStructureError, checked_mat
 from sim.runlog import STANDARD_UNITS, RunLog
 
 JOINTS = ("hinge", "slide")
@@ -62,20 +76,38 @@ UNIT_ALIASES: dict[str, str] = {
     **{alias: "°C" for alias in ("degC", "deg C", "℃")},
 }
 
+# A number in text: an ASCII decimal (sign, digits, optional fraction and exponent) or, in any case,
+# 'nan', 'inf', 'infinity'; spaces and tabs around it are ignored. No '_', no non-ASCII digits or spaces.
+NUMBER = re.compile(r"[ \t]*[+-]?(?:(?:[0-9]+\.?[0-9]*|\.[0-9]+)(?:[eE][+-]?[0-9]+)?|(?i:inf|infinity|nan))[ \t]*")
+
 PARQUET_UNITS_KEY = b"torquebed.units"
 PARQUET_META_KEY = b"torquebed.meta"
 MAT_RESERVED = ("units", "meta")
 _MATLAB_NAME = re.compile(r"[A-Za-z][A-Za-z0-9_]{0,62}")  # MATLAB's isvarname, namelengthmax = 63
 _HDF5_SIGNATURE = b"\x89HDF\r\n\x1a\n"
 _HDF5_USERBLOCK = 512  # a v7.3 .mat is HDF5 behind MATLAB's 512-byte header
+_MAT73_SCRIPT = Path(__file__).with_name("_mat73.py")
+MAT73_TIMEOUT_S = 300.0  # a v7.3 file's parser (a child process) taking longer is stopped and the file refused
 
 
 class LogError(ValueError):
-    """A run log breaks the format. ``column`` and ``row`` (spreadsheet row, header = 1) name where, if known."""
+    """A run log breaks the format.
 
-    def __init__(self, message: str, *, column: str | None = None, row: int | None = None) -> None:
+    ``path`` is the file at fault (the log or its sidecar); ``column`` and ``row`` (spreadsheet row,
+    header = 1) name where in it, if known. A message from :func:`read_log` starts with the file's name.
+    """
+
+    def __init__(self, message: str, *, column: str | None = None, row: int | None = None,
+                 path: Path | None = None) -> None:
         super().__init__(message)
-        self.column, self.row = column, row
+        self.column, self.row, self.path = column, row, path
+
+    def located(self, path: Path) -> LogError:
+        """This error, its message starting with ``path``'s name unless it names a file already."""
+        if self.path is None:
+            self.path = path
+            self.args = (f"{path.name}: {self.args[0]}",)
+        return self
 
 
 class LogWarning(UserWarning):
@@ -281,33 +313,32 @@ def read_log(path: str | Path, *, joint: str = "hinge", max_jitter: float = 0.05
     reader = _READERS.get(_suffix(path))
     if reader is None:
         raise LogError(f"cannot read {path.name!r}: unknown suffix {path.suffix!r}; use one of "
-                       f"{', '.join(_READERS)}")
-    raw = reader(path)
-    _check_columns(list(raw.columns), set(raw.declared), raw.where)
-    log_units = _units(list(raw.columns), raw.declared, units, joint, raw.where)
-    columns = {name: _to_float(name, values) for name, values in raw.columns.items()}
-    _check_samples(columns, max_jitter=max_jitter)
+                       f"{', '.join(_READERS)}", path=path)
+    try:
+        raw = reader(path)
+        _check_columns(list(raw.columns), set(raw.declared), raw.where)
+        log_units = _units(list(raw.columns), raw.declared, units, joint, raw.where)
+        columns = {name: _to_float(name, values) for name, values in raw.columns.items()}
+        _check_samples(columns, max_jitter=max_jitter)
+    except LogError as err:
+        err.located(path)
+        raise
     return (SlideRunLog if joint == "slide" else RunLog)(columns, log_units, raw.meta)
 
 
 def _read_csv(path: Path) -> _Raw:
     side = sidecar_path(path)
-    declared: dict[str, str] = {}
-    if side.exists():
-        try:
-            declared = json.loads(side.read_text(encoding="utf-8"))
-        except json.JSONDecodeError as err:
-            raise LogError(f"{side.name}: not valid JSON ({err})") from None
-        if not (isinstance(declared, dict) and all(isinstance(k, str) and isinstance(v, str)
-                                                   for k, v in declared.items())):
-            raise LogError(f"{side.name} must map column names to unit strings, "
-                           f'e.g. {{"tau_flexure": "N·m"}}')
-    with path.open(newline="", encoding="utf-8-sig") as fh:  # -sig: skip the byte-order mark Excel writes
-        reader = csv.reader(fh)
-        header = [name.strip() for name in next(reader, [])]
-        first = next(reader, None)
+    declared = _read_sidecar(side) if side.exists() else {}
+    encoding = _text_encoding(path)
+    head = _csv_rows(path, encoding)
+    header = [name.strip() for name in next(head, [])]
+    first = next(head, None)
+    head.close()
     if not header:
-        raise LogError(f"{path.name} is empty; the first row must name the columns", row=1)
+        raise LogError(f"{path.name} is empty; the first row must name the columns", row=1, path=path)
+    if any("\0" in name for name in header):
+        raise LogError("the header row holds NUL characters: is the file UTF-16 without a byte-order mark? "
+                       "Save it as UTF-8", row=1)
     if len(header) == 1 and (";" in header[0] or "\t" in header[0]):
         sep = "';'" if ";" in header[0] else "tabs"
         raise LogError(f"the header row is one cell {header[0]!r}: the file seems separated by {sep}; "
@@ -324,11 +355,10 @@ def _read_csv(path: Path) -> _Raw:
                        f"the header row; declare units of non-standard columns in {side.name}",
                        row=row_of(0))
     where = f"the sidecar {side.name}"
-    numbers = _csv_numbers(path, header)
+    numbers = _csv_numbers(path, header, encoding)
     if numbers is not None:
         return _Raw(numbers, declared, {}, where)
-    with path.open(newline="", encoding="utf-8-sig") as fh:  # something is wrong: find it cell by cell
-        body = list(csv.reader(fh))[1:]
+    body = list(_csv_rows(path, encoding))[1:]  # something is wrong: find it cell by cell
     while body and not body[-1]:
         body.pop()
     for i, row in enumerate(body):
@@ -339,21 +369,95 @@ def _read_csv(path: Path) -> _Raw:
     return _Raw(dict(zip(header, cells)), declared, {}, where)
 
 
-def _csv_numbers(path: Path, header: list[str]) -> dict[str, np.ndarray] | None:
+def _read_sidecar(side: Path) -> dict[str, str]:
+    """The units a CSV's sidecar declares; a LogError naming the sidecar if it is not a JSON map of strings."""
+    try:
+        text = side.read_text(encoding=_text_encoding(side))
+        return _unit_map(_json_from(text, side.name), side.name)
+    except LogError as err:
+        raise err.located(side) from None
+
+
+def _text_encoding(path: Path) -> str:
+    """The codec that decodes all of ``path``: the one its byte-order mark names, else UTF-8, else cp1252.
+
+    cp1252 (Windows' Western European) reads Latin-1 text the same, bar control characters.
+    """
+    with path.open("rb") as fh:
+        start = fh.read(len(codecs.BOM_UTF8))
+    marked = [(codec, name) for bom, codec, name in _BYTE_ORDER_MARKS if start.startswith(bom)]
+    tried = []
+    for codec, name in marked[:1] or [("utf-8", "UTF-8"), ("cp1252", "cp1252")]:
+        failure = _decode_failure(path, codec)
+        if failure is None:
+            return codec
+        tried.append((name, *failure))
+    raise LogError(f"{path.name} is not text in " + " or ".join(f"{name} ({where})" for name, where, _ in tried)
+                   + "; save it as UTF-8", row=tried[0][2], path=path)
+
+
+_BYTE_ORDER_MARKS = ((codecs.BOM_UTF8, "utf-8-sig", "UTF-8"), (codecs.BOM_UTF16_LE, "utf-16", "UTF-16 LE"),
+                     (codecs.BOM_UTF16_BE, "utf-16", "UTF-16 BE"))
+_CHUNK_BYTES = 1 << 20
+
+
+def _decode_failure(path: Path, codec: str) -> tuple[str, int | None] | None:
+    """None if ``codec`` decodes all of ``path``; else where it fails and the row (single-byte codecs)."""
+    decoder = codecs.getincrementaldecoder(codec)()
+    ascii_compatible = not codec.startswith("utf-16")
+    offset = 0
+    with path.open("rb") as fh:
+        while True:
+            chunk = fh.read(_CHUNK_BYTES)
+            if chunk and ascii_compatible and chunk.isascii() and not decoder.getstate()[0]:  # the usual log
+                offset += len(chunk)
+                continue
+            pending = len(decoder.getstate()[0])  # bytes of the previous chunk the decoder still holds
+            try:
+                decoder.decode(chunk, final=not chunk)
+            except UnicodeDecodeError as err:
+                at = offset - pending + err.start
+                if codec.startswith("utf-16"):
+                    return f"{err.reason} at byte {at}", None
+                fh.seek(0)
+                row = fh.read(at).count(b"\n") + 1
+                return f"byte 0x{err.object[err.start]:02X} in row {row}", row
+            if not chunk:
+                return None
+            offset += len(chunk)
+
+
+def _csv_rows(path: Path, encoding: str) -> Iterator[list[str]]:
+    """The CSV file's rows as cells; a LogError naming the row a record that cannot be parsed starts in."""
+    with path.open(newline="", encoding=encoding) as fh:
+        reader = csv.reader(fh)
+        while True:
+            start = reader.line_num + 1
+            try:
+                yield next(reader)
+            except StopIteration:
+                return
+            except csv.Error as err:  # e.g. an unclosed '"' making the rest of the file one cell
+                raise LogError(f"row {start}: not readable as CSV ({err})", row=start) from None
+
+
+def _csv_numbers(path: Path, header: list[str], encoding: str) -> dict[str, np.ndarray] | None:
     """All columns as float64 if every cell is a number (pyarrow: fast, correctly rounded), else None.
 
     Anything unusual (text, empty cells, 'nan', ragged or blank rows) returns None, and the cell-by-cell
-    path reads the file again to name the column and row.
+    path reads the file again to name the column and row. pyarrow accepts no number that :data:`NUMBER`
+    refuses. It reads UTF-8 directly and other encodings through Python's codec.
     """
     import pyarrow as pa
     import pyarrow.csv as pa_csv
 
     try:
         table = pa_csv.read_csv(
-            path, read_options=pa_csv.ReadOptions(column_names=header, skip_rows=1),
+            path, read_options=pa_csv.ReadOptions(column_names=header, skip_rows=1,
+                                                  encoding="utf8" if encoding.startswith("utf-8") else encoding),
             parse_options=pa_csv.ParseOptions(ignore_empty_lines=False),
             convert_options=pa_csv.ConvertOptions(column_types=dict.fromkeys(header, pa.float64())))
-    except pa.ArrowInvalid:
+    except (pa.ArrowInvalid, UnicodeDecodeError):
         return None
     if any(column.null_count for column in table.columns):
         return None
@@ -365,88 +469,154 @@ def _read_parquet(path: Path) -> _Raw:
     import pyarrow.parquet as pq
 
     try:
-        table = pq.read_table(path)
-    except pa.ArrowInvalid as err:
-        raise LogError(f"{path.name} is not a readable Parquet file: {err}") from None
+        parquet = pq.ParquetFile(path)
+        _check_parquet_rows(parquet.metadata)
+        table = parquet.read()
+    except (pa.ArrowException, OSError) as err:  # truncated or corrupt: ArrowInvalid, OSError, ...
+        detail = re.sub(r" input source '[^']*'", "", str(err))
+        raise LogError(f"{path.name} is not a readable Parquet file: {detail}", path=path) from None
+    except UnicodeDecodeError as err:  # pyarrow decodes column names as it reads
+        raise LogError(f"a column name is not UTF-8 text ({err})") from None
     names = table.column_names
     for j, name in enumerate(names):
         if name in names[:j]:
             raise LogError(f"column {name!r} appears twice", column=name)
     metadata = table.schema.metadata or {}
-    declared = _json_from(metadata.get(PARQUET_UNITS_KEY), f"{path.name}: schema metadata 'torquebed.units'")
-    meta = _json_from(metadata.get(PARQUET_META_KEY), f"{path.name}: schema metadata 'torquebed.meta'")
-    columns: dict[str, Any] = {}
-    for name in names:
-        column = table.column(name)
-        if (pa.types.is_floating(column.type) or pa.types.is_integer(column.type)) and column.null_count == 0:
-            columns[name] = np.array(column.to_numpy(), dtype=np.float64)
-        else:
-            columns[name] = column.to_pylist()  # text, booleans or nulls: _to_float names the first bad cell
+    units_key = "schema metadata 'torquebed.units'"
+    declared = _unit_map(_json_from(metadata.get(PARQUET_UNITS_KEY), units_key), units_key)
+    meta = _json_from(metadata.get(PARQUET_META_KEY), "schema metadata 'torquebed.meta'")
+    columns = {name: _parquet_column(name, table.column(name)) for name in names}
     return _Raw(columns, declared, meta, "the schema metadata 'torquebed.units'")
 
 
-def _read_mat(path: Path) -> _Raw:
-    from scipy.io import loadmat
-    from scipy.io.matlab import MatReadError, matfile_version
+def _check_parquet_rows(metadata: Any) -> None:
+    """Refuse row counts that could not be read into memory: pyarrow allocates for them before reading.
 
+    A corrupt footer can declare 2^40 rows in a file of a few hundred bytes; the reader would need the
+    declared rows times the columns times 8 bytes twice over (pyarrow's buffers and the float64 columns).
+    """
+    groups = [metadata.row_group(i).num_rows for i in range(metadata.num_row_groups)]
+    rows, columns = sum(groups), max(metadata.num_columns, 1)
+    needed = 16 * rows * columns
+    if min(groups, default=0) < 0 or needed > _memory_bytes():
+        raise LogError(f"the file declares {rows} rows of {columns} column(s) ({needed / 1e9:.3g} GB to read), "
+                       f"more than this machine's memory ({_memory_bytes() / 1e9:.3g} GB): a corrupt footer, "
+                       f"or a log to split")
+
+
+def _memory_bytes() -> int:
+    """Physical memory of this machine."""
+    return os.sysconf("SC_PHYS_PAGES") * os.sysconf("SC_PAGE_SIZE")
+
+
+def _parquet_column(name: str, column: Any) -> Any:
+    """A Parquet column as float64, or as cells (text, booleans, nulls) for ``_to_float`` to check one by one."""
+    import pyarrow as pa
+
+    kind = column.type
+    try:
+        if pa.types.is_dictionary(kind):  # e.g. pandas' categorical: read the values
+            column = column.cast(kind.value_type)
+            kind = column.type
+        if (pa.types.is_floating(kind) or pa.types.is_integer(kind)) and column.null_count == 0:
+            return np.array(column.to_numpy(), dtype=np.float64)
+        if any(test(kind) for test in (pa.types.is_floating, pa.types.is_integer, pa.types.is_string,
+                                       pa.types.is_large_string, pa.types.is_boolean, pa.types.is_null)):
+            return column.to_pylist()
+    except (pa.ArrowException, ValueError) as err:  # e.g. text that is not UTF-8
+        raise LogError(f"column {name!r} cannot be read: {err}", column=name) from None
+    hint = (" (convert to seconds, e.g. since the first sample)" if pa.types.is_temporal(kind) else "")
+    raise LogError(f"column {name!r} holds {kind} values; the format stores time in seconds and every signal as "
+                   f"numbers (float64; integers and numbers as text are converted){hint}", column=name)
+
+
+def _read_mat(path: Path) -> _Raw:
     with path.open("rb") as fh:
         head = fh.read(_HDF5_USERBLOCK + len(_HDF5_SIGNATURE))
-    if _HDF5_SIGNATURE in (head[:len(_HDF5_SIGNATURE)], head[_HDF5_USERBLOCK:]):
-        variables = _read_mat73(path)
-    else:
-        try:
-            major = matfile_version(str(path))[0]
-        except (MatReadError, ValueError) as err:
-            raise LogError(f"{path.name} is not a MATLAB .mat file: {err}") from None
-        if major == 2:
-            raise LogError(f"{path.name} has a MATLAB v7.3 header but no HDF5 data after it; is it truncated?")
-        variables = {k: v for k, v in loadmat(str(path), simplify_cells=True).items() if not k.startswith("__")}
+        if _HDF5_SIGNATURE in (head[:len(_HDF5_SIGNATURE)], head[_HDF5_USERBLOCK:]):
+            variables = _read_mat73(path)
+        else:
+            try:
+                content = checked_mat(fh, os.fstat(fh.fileno()).st_size, max_bytes=_memory_bytes() // 4)
+            except MatStructureError as err:
+                raise LogError(str(err)) from None
+            variables = _loadmat(content)
     units = variables.pop("units", None)
     meta_text = variables.pop("meta", None)
     declared = _mat_units(units)
     if meta_text is not None and not isinstance(meta_text, str):
-        raise LogError(f"{path.name}: variable 'meta' must be a char array of JSON text", column="meta")
-    meta = _json_from(meta_text, f"{path.name}: variable 'meta'")
+        raise LogError("variable 'meta' must be a char array of JSON text", column="meta")
+    meta = _json_from(meta_text, "variable 'meta'")
     columns: dict[str, Any] = {}
     for name, value in variables.items():
         columns[name] = _mat_vector(name, value)
     return _Raw(columns, declared, meta, "the 'units' struct")
 
 
-def _read_mat73(path: Path) -> dict[str, Any]:
-    """Variables of a v7.3 (HDF5) .mat as loadmat(simplify_cells=True) gives them: vectors, str, dict."""
+def _loadmat(content: bytes) -> dict[str, Any]:
+    """The variables of a v4 or v5/v7 file as :func:`~sim.matcheck.checked_mat` passed it, read by scipy."""
+    from scipy.io import loadmat
+
     try:
-        import h5py
-    except ImportError:
-        raise LogError(f"{path.name} is a MATLAB v7.3 (HDF5) file; reading it needs h5py "
-                       f"(pip install h5py), or re-save it as v7 in MATLAB: save('{path.name}', '-v7')") from None
+        variables = loadmat(io.BytesIO(content), simplify_cells=True)
+    except Exception as err:  # what check_mat leaves to scipy fails in Python (e.g. characters that do not decode)
+        raise LogError(f"scipy cannot read it: {type(err).__name__}: {err}") from None
+    return {k: v for k, v in variables.items() if not k.startswith("__")}
 
-    def value(obj: Any) -> Any:
-        cls = obj.attrs.get("MATLAB_class", b"")
-        cls = cls.decode() if isinstance(cls, bytes) else str(cls)
-        if isinstance(obj, h5py.Group):  # a struct: one member per field, in MATLAB's order if recorded
-            return {key: value(obj[key]) for key in fields(obj) or list(obj)}
-        data = obj[()]
-        if obj.attrs.get("MATLAB_empty", 0):
-            return "" if cls == "char" else np.zeros(0)
-        if cls == "char":
-            return "".join(map(chr, np.ravel(data, order="F")))  # MATLAB stores chars as UTF-16 code units
-        if cls == "cell":  # references to the cells' contents
-            cells = np.empty(data.shape, dtype=object)
-            for index in np.ndindex(data.shape):
-                cells[index] = value(obj.file[data[index]])
-            return cells.T
-        return np.asarray(data).T  # HDF5 holds MATLAB arrays transposed; .T restores MATLAB's shape
 
-    def fields(group: Any) -> list[str]:
-        names = group.attrs.get("MATLAB_fields")
-        return [] if names is None else [b"".join(np.ravel(f)).decode() for f in names]
-
-    with h5py.File(path, "r") as fh:
-        variables = {name: value(fh[name]) for name in fh if not name.startswith("#")}  # '#refs#': cell data
+def _read_mat73(path: Path) -> dict[str, Any]:
+    """Variables of a v7.3 (HDF5) .mat as loadmat(simplify_cells=True) gives them, read in a child process."""
+    if importlib.util.find_spec("h5py") is None:
+        raise LogError(f"{path.name} is a MATLAB v7.3 (HDF5) file; reading it needs h5py (pip install h5py), "
+                       f"or re-save it as v7 in MATLAB: save('{path.name}', '-v7')", path=path)
+    status, variables = _run_parser(_MAT73_SCRIPT, path)
+    if status != "ok":
+        raise LogError(f"{path.name} is not a readable MATLAB v7.3 (HDF5) file: {variables}", path=path)
     # HDF5 lists names sorted; the column order survives in 'units'
-    order = [name for name in _mat_units(variables.get("units")) if name in variables]
+    try:
+        order = [name for name in _mat_units(variables.get("units")) if name in variables]
+    except LogError:
+        order = []  # _read_mat names what is wrong with 'units'
     return {name: variables[name] for name in order + [name for name in variables if name not in order]}
+
+
+def _run_parser(script: Path, path: Path) -> Any:
+    """What ``python -P script path`` pickles to stdout; a LogError if it crashes, fails or takes too long."""
+    try:
+        done = subprocess.run([sys.executable, "-P", str(script), str(path)], capture_output=True,
+                              stdin=subprocess.DEVNULL, timeout=MAT73_TIMEOUT_S)
+    except subprocess.TimeoutExpired:
+        raise LogError(f"the .mat parser did not finish on {path.name} within MAT73_TIMEOUT_S = "
+                       f"{MAT73_TIMEOUT_S:g} s", path=path) from None
+    if done.returncode < 0:
+        raise LogError(f"the .mat parser crashed on {path.name} ({_signal_name(-done.returncode)})", path=path)
+    try:
+        return _ArrayUnpickler(io.BytesIO(done.stdout)).load()
+    except Exception:  # no or broken output: the parser failed before writing its answer
+        last = (done.stderr.decode(errors="replace").strip().splitlines() or ["no output"])[-1]
+        raise LogError(f"the .mat parser failed on {path.name} (exit code {done.returncode}): {last}",
+                       path=path) from None
+
+
+def _signal_name(number: int) -> str:
+    try:
+        return f"signal {number}, {signal.Signals(number).name}"
+    except ValueError:
+        return f"signal {number}"
+
+
+class _ArrayUnpickler(pickle.Unpickler):
+    """Unpickles builtins and NumPy arrays only: a parser process that a crafted file took over cannot make
+    this process run code."""
+
+    ALLOWED = {(module, name) for core in ("numpy._core", "numpy.core")
+               for module, name in ((f"{core}.multiarray", "_reconstruct"), (f"{core}.multiarray", "scalar"),
+                                    (f"{core}.numeric", "_frombuffer"))} | {("numpy", "ndarray"), ("numpy", "dtype")}
+
+    def find_class(self, module: str, name: str) -> Any:
+        if (module, name) not in self.ALLOWED:
+            raise pickle.UnpicklingError(f"{module}.{name} is not allowed")
+        return super().find_class(module, name)
 
 
 def _mat_units(units: Any) -> dict[str, str]:
@@ -490,14 +660,22 @@ _READERS: dict[str, Callable[[Path], _Raw]] = {".csv": _read_csv, ".parquet": _r
 
 
 def _json_from(text: bytes | str | None, where: str) -> dict[str, Any]:
+    """The JSON object in ``text`` ({} for None); ``where`` names it in messages."""
     if text is None:
         return {}
     try:
         value = json.loads(text)
-    except json.JSONDecodeError as err:
-        raise LogError(f"{where} is not valid JSON ({err})") from None
+    except (ValueError, RecursionError) as err:  # JSONDecodeError, UnicodeDecodeError, too many digits, nesting
+        raise LogError(f"{where} is not valid JSON ({type(err).__name__}: {err})") from None
     if not isinstance(value, dict):
         raise LogError(f"{where} must be a JSON object")
+    return value
+
+
+def _unit_map(value: dict[str, Any], where: str) -> dict[str, str]:
+    """``value`` if it maps column names to unit strings, else a LogError naming ``where``."""
+    if not all(isinstance(k, str) and isinstance(v, str) for k, v in value.items()):
+        raise LogError(f'{where} must map column names to unit strings, e.g. {{"tau_flexure": "N·m"}}')
     return value
 
 
@@ -562,7 +740,9 @@ def _is_number(cell: Any) -> bool:
 
 def _cell_to_float(cell: Any) -> float:
     if isinstance(cell, str):
-        return float(cell.strip())  # float() rejects '' and text; accepts 'nan'/'inf', caught as non-finite later
+        if not NUMBER.fullmatch(cell):
+            raise ValueError(cell)
+        return float(cell)  # 'nan' and 'inf' are refused later, as non-finite
     if isinstance(cell, (bool, np.bool_)) or cell is None:
         raise TypeError(type(cell).__name__)
     array = np.asarray(cell)
@@ -575,11 +755,8 @@ def _to_float(name: str, values: Any) -> np.ndarray:
     """The column as float64, or a LogError naming the first cell that is not a number."""
     if isinstance(values, np.ndarray) and values.dtype.kind in "iuf":
         return values.astype(np.float64)
-    if all(isinstance(cell, str) for cell in values):
-        try:  # fast path: NumPy parses text with correct rounding, like float()
-            return np.array([cell.strip() for cell in values], dtype=np.float64)
-        except ValueError:
-            pass
+    if all(isinstance(cell, str) and NUMBER.fullmatch(cell) for cell in values):
+        return np.array(values, dtype=np.float64)  # NumPy parses text with correct rounding, like float()
     out = np.empty(len(values))
     for i, cell in enumerate(values):
         try:
@@ -597,8 +774,12 @@ def _rows(indices: np.ndarray) -> str:
 
 
 def _check_samples(columns: dict[str, np.ndarray], *, max_jitter: float) -> None:
-    """Length, finiteness, strictly increasing ``time``, regular sampling."""
+    """Equal lengths, length, finiteness, strictly increasing ``time``, regular sampling."""
     n = len(columns["time"])
+    for name, values in columns.items():
+        if len(values) != n:
+            raise LogError(f"column {name!r} has {len(values)} samples; 'time' has {n}", column=name,
+                           row=row_of(min(len(values), n)))
     if n < MIN_SAMPLES:
         raise LogError(f"the log has {n} sample(s); at least MIN_SAMPLES = {MIN_SAMPLES} are needed (the sampling "
                        f"check compares steps with the median step)")

@@ -52,6 +52,7 @@ CHANNEL_MEANING = {
     "sensor": "torque sensor minus the transmitted torque the model predicts it reads",
     "kinematic": "motor angle minus lever angle minus flexure twist, against the backlash model",
 }
+STAND_IN_GAIN = 1.0 / 3.0  # beside an unexplained remainder, a finding explaining less is a stand-in
 LISTED_REJECTED_GAIN = 0.10  # refused candidates with at least this held-out gain are listed with their rule
 WIDEN = 10.0  # a free parameter that ends at a bound is re-fitted with bounds this many times as wide
 SECONDS_PER_GRID_SAMPLE = 2.5e-3  # the expected time of a run, per analysis-grid sample and candidate, 2 cores
@@ -323,8 +324,8 @@ def analyse(log: RunLog, rig: Rig, config: AnalysisConfig | None = None, *, prog
     findings, tentative = _confident(findings, structure)
     if tentative:
         structure = replace(structure, description=structure.description + [
-            f"{f.effect} explains {100 * f.gain:.0f} % of the error it was found on, less than the remainder's "
-            f"structure: not a confident name" for f in tentative])
+            f"{f.effect} would explain {100 * f.gain:.0f} % of the error it was found on; beside this remainder that "
+            f"makes it a partial stand-in, not a confident name (listed under 'tentative')" for f in tentative])
     timings["structure_s"] = time.perf_counter() - t
     extended = _extended_rig(rig, theta0, current, findings, model)
     residuals_final = model.residuals(current)
@@ -356,7 +357,9 @@ def analyse(log: RunLog, rig: Rig, config: AnalysisConfig | None = None, *, prog
                               "min_effort_change": config.min_effort_change,
                               "min_event_z": config.min_event_z, "block_s": config.block_s,
                               "min_parameter_change": config.min_parameter_change,
-                              "max_stability_z": config.max_stability_z},
+                              "max_stability_z": config.max_stability_z,
+                              "stability_tolerance": config.stability_tolerance,
+                              "max_remainder": config.max_remainder},
         "config": config.to_dict(),
         "timings_s": timings,
     }
@@ -521,14 +524,15 @@ def _extended_rig(rig: Rig, theta0: dict[str, float], theta: dict[str, float], f
 
 
 def _confident(findings: list[Finding], structure: Structure) -> tuple[list[Finding], list[Finding]]:
-    """(confident, tentative) findings: with an unexplained remainder, a finding that brought the held-out error
-    down by less than a generic model would bring the remainder down is a partial stand-in for what the library
-    does not hold, not a confident name."""
+    """(confident, tentative) findings. With an unexplained remainder, a finding on the effort is a partial
+    stand-in for what the library does not hold, not a confident name, if it brought the held-out error down by
+    less than a generic model would bring the remainder down, or explained less than a third of the error it was
+    found on."""
     if not structure.unexplained:
         return findings, []
     remainder = structure.rmse.get("effort", 0.0) * max(structure.generic_gain, 0.0)
     confident = [f for f in findings if f.evidence["channel"] != "effort"
-                 or f.rmse_heldout_before - f.rmse_heldout_after >= remainder]
+                 or (f.rmse_heldout_before - f.rmse_heldout_after >= remainder and f.gain >= STAND_IN_GAIN)]
     return confident, [f for f in findings if f not in confident]
 
 

@@ -27,7 +27,8 @@ from sim.discrepancy.model import NUISANCE_KEYS, Surrogate
 
 KIN_OFFSET_BOUND_RAD = 0.1  # encoder offset between motor and lever angle [rad]
 MAX_NFEV = 60  # function evaluations per least-squares refinement (x the number of parameters, at least this)
-AT_BOUND = 1e-3  # a value within this fraction of its range of a bound is at that bound
+AT_BOUND = 1e-3  # a value within this fraction of a bound's magnitude ...
+AT_BOUND_OF_RANGE = 1e-6  # ... plus this fraction of the range is at that bound (the solver stops within ~1e-10)
 
 
 @dataclass(frozen=True)
@@ -88,8 +89,9 @@ def at_bound_of(key: str, value: float, low: float, high: float, start: float | 
     param = effect_of_key(key).param(key)
     if param.cyclic:
         return None
-    tolerance = AT_BOUND * (high - low) if math.isfinite(high - low) else AT_BOUND * max(abs(value), 1e-12)
+    span = high - low if math.isfinite(high - low) else max(abs(value), 1e-12)
     for side, bound in (("lower", low), ("upper", high)):
+        tolerance = AT_BOUND_OF_RANGE * span + AT_BOUND * abs(bound)
         if abs(value - bound) <= tolerance and not (bound == param.neutral and start in (None, param.neutral)):
             return side
     return None

@@ -37,7 +37,7 @@ fails is recorded as the reason (``Candidate.rejected_by``):
     estimator's own bias is not a discrepancy;
 ``stationary``
     the candidate's parameters fitted on the held-out part alone agree with the fit part's within
-    ``max_stability_z`` combined standard errors or ``min_parameter_change`` of their value: an effect that
+    ``max_stability_z`` combined standard errors or ``stability_tolerance`` of their value: an effect that
     drifts across the log is reported as non-stationary, not as the effect.
 
 The best passing candidate (lowest ΔBIC) is accepted; then every accepted effect and free parameter is re-fitted
@@ -273,7 +273,7 @@ def stationarity(model: Surrogate, candidate: Candidate, theta: dict[str, float]
     for key in keys:
         a, b = fit_part.theta[key], held.theta[key]
         allowed = max(cfg.max_stability_z * math.hypot(se_fit.get(key, 0.0), se_held.get(key, 0.0)),
-                      cfg.min_parameter_change * abs(a))
+                      cfg.stability_tolerance * abs(a))
         if not abs(b - a) <= allowed:
             drifting.append(f"{key} {a:.4g} on the fit part, {b:.4g} on the held-out part")
     values = {k: held.theta[k] for k in effect.keys}

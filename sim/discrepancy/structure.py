@@ -11,7 +11,8 @@ significance rule as a candidate effect):
 - the strongest lines of the residual's spectrum on the fit part (each a sine and a cosine in time).
 
 The command itself is not in the basis: with it, the basis holds every term of the balance and rebuilds any
-residual by scaling the whole balance to nothing. If that generic model explains a significant part of the held-out residual (the candidates' rules 'bic',
+residual by scaling the whole balance to nothing. If the final model's held-out effort error exceeds ``max_remainder`` of the command (RMS), or if that generic
+model explains a significant part of the held-out residual (the candidates' rules 'bic',
 'gain', 'size' and 'events'), the verdict is a discrepancy the
 library does not name, described by the basis terms that carry it ("effort error grows with v|v|", "a 6.0 Hz
 line not locked to position"), with the RMSE it leaves. So is a candidate effect that would explain a third or
@@ -204,15 +205,19 @@ def residual_structure(model: Surrogate, theta: dict[str, float], current: Chann
             nearest.append(f"{c.effect} would explain {100 * c.gain:.0f} % of the held-out error, but {why}")
     if significant and not description:
         description.append("the residual holds structure no single basis term carries")
-    unexplained = significant or bool(nearest)
     rmse = {c: current.rmse[c] for c in current.rmse}
+    fraction = rmse["effort"] / model.command_rms if model.command_rms > 0 else float("nan")
+    too_large = fraction >= cfg.max_remainder
+    unexplained = significant or bool(nearest) or too_large
     if unexplained:
         unit = channel_unit("effort", model.rig.joint)
-        description.insert(0, f"the final model leaves {rmse['effort']:.4g} {unit} RMS of effort error held out, "
-                              f"{100 * gain:.0f} % of which a generic model of it explains")
+        description.insert(0, f"the final model leaves {rmse['effort']:.4g} {unit} RMS of effort error held out "
+                              f"({100 * fraction:.2g} % of the command's RMS"
+                              + (f", above the {100 * cfg.max_remainder:g} % a model of the right physics leaves"
+                                 if too_large else "")
+                              + f"); a generic model of it explains {max(100 * gain, 0):.0f} %")
     independent = max(1, int(round(1.0 / d.independent_per_grid_sample)))
     whiteness = ljung_box(residual[d.held][::independent], min(WHITENESS_LAGS, max(1, int(d.held.sum()) // 8)))
-    fraction = rmse["effort"] / model.command_rms if model.command_rms > 0 else float("nan")
     return Structure(unexplained, description, rmse, gain, fraction, alone, lines, whiteness, nearest)
 
 

@@ -63,7 +63,7 @@ def test_the_surrogate_bias_on_a_baseline_log_is_not_reported(fine_encoder_senso
     'moved' is what stands between this bias and a report.
     """
     log, rig, _ = fine_encoder_sensor_feedback_log
-    relaxed = AnalysisConfig(min_ic_drop=0.0, min_relative_gain=0.0, min_event_z=-np.inf)
+    relaxed = AnalysisConfig(min_ic_drop=0.0, min_relative_gain=0.0, min_effort_change=0.0, min_event_z=-np.inf)
     result = analyse(log, rig, relaxed)
     assert "coulomb_friction" not in result.found
     coulomb = next(s for s in result.baseline["candidates"][0] if s["effect"] == "coulomb_friction")

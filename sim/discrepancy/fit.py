@@ -99,9 +99,10 @@ def at_bound_of(key: str, value: float, low: float, high: float, start: float | 
 
 def fit_keys(model: Surrogate, theta0: dict[str, float], keys: tuple[str, ...], scales: dict[str, float],
              starts: list[dict[str, float]] | None = None, *, mask: np.ndarray | None = None,
-             held: tuple[str, ...] = (), widen: float = 1.0) -> FitOutcome:
-    """Least squares of ``keys`` from the best of ``starts`` (each a partial theta) on ``mask`` (default: the fit
-    part). ``held`` keys keep their screened start value; ``widen`` widens the bounds (:func:`bounds_of`)."""
+             held: tuple[str, ...] = (), widen: float = 1.0, refine: int = 1) -> FitOutcome:
+    """Least squares of ``keys`` on ``mask`` (default: the fit part), refined from the ``refine`` best of
+    ``theta0`` and ``starts`` (each a partial theta; the best final fit is kept). ``held`` keys keep their screened
+    start value; ``widen`` widens the bounds (:func:`bounds_of`)."""
     mask = model.data.fit if mask is None else mask
     evaluations = 0
 
@@ -111,40 +112,42 @@ def fit_keys(model: Surrogate, theta0: dict[str, float], keys: tuple[str, ...], 
         r = residual_vector(model, theta, mask, scales)
         return float(r @ r)
 
-    best = dict(theta0)
-    best_cost = cost_of(best)
-    for start in starts or []:
-        candidate = {**theta0, **start}
-        c = cost_of(candidate)
-        if c < best_cost:
-            best, best_cost = candidate, c
+    screened = sorted(((cost_of(t), i, t) for i, t in enumerate([dict(theta0)] + [{**theta0, **s} for s in starts or []])),
+                      key=lambda e: (e[0], e[1]))
     keys = tuple(k for k in keys if k not in held)
     bounds = {k: bounds_of(k, model, theta0, keys, widen) for k in keys}
     if not keys:
-        return FitOutcome(best, keys, best_cost, evaluations, bounds)
+        return FitOutcome(screened[0][2], keys, screened[0][0], evaluations, bounds)
     lo = np.array([bounds[k][0] for k in keys])
     hi = np.array([bounds[k][1] for k in keys])
-    x0 = np.clip(np.array([best[k] for k in keys]), lo, hi)
     span = hi - lo
     inside = np.where(np.isfinite(span), 1e-9 * span, 1e-12)
-    x0 = np.clip(x0, lo + inside, hi - inside)
-    scale = np.array([max(abs(v), 1e-3 * (s if math.isfinite(s) else 1.0)) for v, s in zip(x0, span, strict=True)])
+    best: FitOutcome | None = None
+    for _, _, start in screened[:max(1, refine)]:
+        x0 = np.clip(np.clip(np.array([start[k] for k in keys]), lo, hi), lo + inside, hi - inside)
+        scale = np.array([max(abs(v), 1e-3 * (s if math.isfinite(s) else 1.0))
+                          for v, s in zip(x0, span, strict=True)])
 
-    def fun(x: np.ndarray) -> np.ndarray:
-        nonlocal evaluations
-        evaluations += 1
-        theta = dict(best)
-        theta.update(zip(keys, x.tolist(), strict=True))
-        return residual_vector(model, theta, mask, scales)
+        def fun(x: np.ndarray, start: dict[str, float] = start) -> np.ndarray:
+            nonlocal evaluations
+            evaluations += 1
+            theta = dict(start)
+            theta.update(zip(keys, x.tolist(), strict=True))
+            return residual_vector(model, theta, mask, scales)
 
-    solution = least_squares(fun, x0, bounds=(lo, hi), x_scale=scale, max_nfev=max(MAX_NFEV, 10 * len(keys)),
-                             method="trf", diff_step=1e-4)
-    theta = dict(best)
-    theta.update(zip(keys, solution.x.tolist(), strict=True))
-    for key in keys:
-        theta = effect_of_key(key).canonical(theta, model.rig.joint) if key not in NUISANCE_KEYS else theta
-    at_bound = {k: side for k, (low, high) in bounds.items() if (side := at_bound_of(k, theta[k], low, high, theta0[k]))}
-    return FitOutcome(theta, keys, float(2.0 * solution.cost), evaluations, bounds, at_bound, solution.jac)
+        solution = least_squares(fun, x0, bounds=(lo, hi), x_scale=scale, max_nfev=max(MAX_NFEV, 10 * len(keys)),
+                                 method="trf", diff_step=1e-4)
+        if best is not None and 2.0 * solution.cost >= best.cost:
+            continue
+        theta = dict(start)
+        theta.update(zip(keys, solution.x.tolist(), strict=True))
+        for effect in {effect_of_key(k) for k in keys if k not in NUISANCE_KEYS}:
+            theta = effect.canonical(theta, model.rig.joint)
+        at_bound = {k: side for k, (low, high) in bounds.items()
+                    if (side := at_bound_of(k, theta[k], low, high, theta0[k]))}
+        best = FitOutcome(theta, keys, float(2.0 * solution.cost), 0, bounds, at_bound, solution.jac)
+    assert best is not None
+    return FitOutcome(best.theta, keys, best.cost, evaluations, bounds, best.at_bound, best.jacobian)
 
 
 def standard_errors(outcome: FitOutcome, dof_fraction: float) -> dict[str, float]:

@@ -319,6 +319,17 @@ class Surrogate:
 
         return self.memo("friction", (fc, fs, vs), static_curve)
 
+    def cost(self, theta: dict[str, float]) -> float:
+        """Sum of the squared residuals on the fit part, each channel scaled by its RMS there at the rig's own
+        parameters [1] (for screening starting points)."""
+        if not hasattr(self, "_cost_scales"):
+            self._cost_scales = {c: rms(r[self.data.fit]) or 1.0 for c, r in self.residuals(self.theta0).items()}
+        total = 0.0
+        for channel, r in self.residuals(theta).items():
+            sel = r[self.data.fit]
+            total += float(np.sum(np.where(np.isfinite(sel), sel, 0.0) ** 2)) / self._cost_scales[channel] ** 2
+        return total
+
     def loads(self, theta: dict[str, float]) -> np.ndarray | float:
         """Effort the joint needs for the effects' loads, on the grid [N·m | N]."""
         return sum((e.load(self, theta) for e in self._hooks["load"]), 0.0)

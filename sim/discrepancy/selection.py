@@ -221,9 +221,10 @@ def candidate_keys(effect: str, accepted: tuple[str, ...]) -> tuple[str, ...]:
 def fit_effect(model: Surrogate, effect: str, theta: dict[str, float], accepted: tuple[str, ...],
                scales: dict[str, float], *, mask: np.ndarray | None = None, widen: float = 1.0) -> FitOutcome:
     """Fit one effect's parameters jointly with the ``accepted`` keys, from the effect's starting points."""
-    starts, held = EFFECTS[effect].starts(model, theta)
+    spec = EFFECTS[effect]
+    starts, held = spec.starts(model, theta)
     return fit_keys(model, theta, candidate_keys(effect, accepted), scales, starts, mask=mask, held=held,
-                    widen=widen)
+                    widen=widen, refine=spec.refined_starts)
 
 
 def fit_candidate(model: Surrogate, effect: str, theta: dict[str, float], accepted: tuple[str, ...],

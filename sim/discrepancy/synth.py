@@ -58,15 +58,19 @@ FREE_COMMAND_LIMIT_NM = 4.0
 SLIDE_SWING_M = ((0.15, 0.25), (0.04, 1.3))
 HINGE_SWING_RAD = ((1.5, 0.25), (0.4, 1.3))  # rigid hinge: position reference (amplitude [rad], frequency [Hz])
 HINGE_KP_NM_PER_RAD, HINGE_KD_NMS_PER_RAD = 10.0, 1.0
-HINGE_COMMAND_LIMIT_NM = 8.0
+HINGE_COMMAND_LIMIT_NM = 2.6
 HINGE_ENCODER_COUNTS = 2**17  # assumed: counts per turn of the rigid hinge's encoder
 SLIDE_KP_N_PER_M, SLIDE_KD_NS_PER_M = 400.0, 40.0
-SLIDE_COMMAND_LIMIT_N = 60.0
+SLIDE_COMMAND_LIMIT_N = 14.0
 PI_REFERENCE = ((4.0, 0.25), (0.6, 2.3))  # torque reference of the closed-loop logs (amplitude, frequency)
 PI_BIAS_NM = 0.5
 
-EXPERIMENTS = ("locked", "free", "locked_pi_sensor", "locked_pi_current", "slide", "hinge")
-RIGID_EXPERIMENTS = ("slide", "hinge")
+EXPERIMENTS = ("locked", "free", "locked_pi_sensor", "locked_pi_current", "slide", "hinge", "slide_moves",
+               "hinge_moves")
+RIGID_EXPERIMENTS = ("slide", "hinge", "slide_moves", "hinge_moves")
+TESTBED_EXPERIMENTS = tuple(e for e in EXPERIMENTS if e not in RIGID_EXPERIMENTS)
+MOVES = {"hinge": 0.5, "slide": 0.05}  # point-to-point moves between ± this [rad | m] ...
+MOVE_S, DWELL_S = 2.0, 0.5  # ... each taking MOVE_S with a raised-cosine velocity, then a dwell of DWELL_S [s]
 # The experiment whose log reveals each effect (docs/discrepancy.md, "Effects and the experiments that reveal
 # them"; the hidden-effect sweep recovers each from it). Presliding also needs a fine motor encoder.
 REVEALING_EXPERIMENT = {
@@ -78,10 +82,11 @@ REVEALING_EXPERIMENT = {
     "periodic_disturbance": "free", "drivetrain_compliance": "hinge", "inertia": "hinge",
 }
 
+# peak efforts ~1.3 x the swings' largest command, so that the roll-off shows (commands reach ~75 % of the peak)
 BASELINE_SLIDE_RIG = {"model": "rigid-joint", "joint": "slide", "mass_kg": 2.0, "effort_gain": 1.0,
-                      "peak_effort": 100.0, "friction": {"coulomb": 3.0, "viscous": 8.0}}
+                      "peak_effort": SLIDE_COMMAND_LIMIT_N, "friction": {"coulomb": 3.0, "viscous": 8.0}}
 BASELINE_HINGE_RIG = {"model": "rigid-joint", "joint": "hinge", "inertia_kgm2": 0.05, "effort_gain": 1.0,
-                      "peak_effort": 10.0, "friction": {"coulomb": 0.3, "viscous": 0.05}}
+                      "peak_effort": HINGE_COMMAND_LIMIT_NM, "friction": {"coulomb": 0.3, "viscous": 0.05}}
 RIGID_BASELINES = {"slide": BASELINE_SLIDE_RIG, "hinge": BASELINE_HINGE_RIG}
 
 
@@ -91,7 +96,8 @@ def baseline_rig(experiment: str, overrides: dict[str, dict[str, float]] | None 
     if experiment in RIGID_EXPERIMENTS:
         if overrides:
             raise ValueError(f"overrides apply to the testbed's parameters, not the rigid {experiment}")
-        return rig_from_dict(RIGID_BASELINES[experiment], source=f"{experiment} baseline")
+        joint = experiment.split("_")[0]
+        return rig_from_dict(RIGID_BASELINES[joint], source=f"{joint} baseline")
     fixture = "free" if experiment == "free" else "locked"
     return rig_from_dict({"model": "testbed", "fixture": fixture, **(overrides or {})},
                          source=f"testbed {fixture} baseline")
@@ -186,6 +192,18 @@ def truth_rig(baseline: Rig, effects: dict[str, tuple[dict[str, float], dict[str
     return HiddenTruth(truth, baseline.with_effects(tuple(added), native))
 
 
+def point_to_point(t: float, amplitude: float) -> float:
+    """Moves between -amplitude and +amplitude, each MOVE_S long with a raised-cosine velocity profile, then a
+    dwell of DWELL_S [rad | m] (position reference at time t [s])."""
+    cycle = MOVE_S + DWELL_S
+    k, phase = divmod(t, cycle)
+    start = -amplitude if int(k) % 2 == 0 else amplitude
+    if phase >= MOVE_S:
+        return -start
+    s = phase / MOVE_S
+    return start - 2.0 * start * (s - math.sin(2 * math.pi * s) / (2 * math.pi))
+
+
 def synth_log(experiment: str, truth: Rig, duration_s: float, seed: int, *,
               motor_encoder_counts: int | None = MOTOR_ENCODER_COUNTS) -> RunLog:
     """A measured-like log of ``experiment`` run on the ``truth`` rig, with sensor noise drawn from ``seed``.
@@ -215,13 +233,17 @@ def synth_log(experiment: str, truth: Rig, duration_s: float, seed: int, *,
     t_of = lambda k: k * 1e-3  # noqa: E731  (command k is sent at the start of tick k)
     noise_tau = rng.normal(0.0, TAU_SENSOR_NOISE_NM, n)
     if experiment in RIGID_EXPERIMENTS:
-        slide = experiment == "slide"
+        joint = experiment.split("_")[0]
+        slide = joint == "slide"
         swing, kp, kd, limit = ((SLIDE_SWING_M, SLIDE_KP_N_PER_M, SLIDE_KD_NS_PER_M, SLIDE_COMMAND_LIMIT_N) if slide
                                 else (HINGE_SWING_RAD, HINGE_KP_NM_PER_RAD, HINGE_KD_NMS_PER_RAD, HINGE_COMMAND_LIMIT_NM))
+        if experiment.endswith("_moves"):
+            reference = lambda t: point_to_point(t, MOVES[joint])  # noqa: E731
+        else:
+            reference = lambda t: sum(a * math.sin(2 * math.pi * f * t) for a, f in swing)  # noqa: E731
 
         def command(k: int, s: dict[str, float]) -> float:
-            ref = sum(a * math.sin(2 * math.pi * f * t_of(k)) for a, f in swing)
-            return min(max(kp * (ref - s["q"]) - kd * s["qd"], -limit), limit)
+            return min(max(kp * (reference(t_of(k)) - s["q"]) - kd * s["qd"], -limit), limit)
 
         run = run_rigid(truth, command, n)
         step = LINEAR_ENCODER_STEP_M if slide else 2 * math.pi / HINGE_ENCODER_COUNTS

@@ -57,7 +57,7 @@ Sensor: measured position y = s_q·round((q + n)/s_q), n white (std ``noise_std`
 2π/2^17 rad, slide 1 µm by default). The command is logged as computed.
 
 Timing: the controller runs every dt = 1 ms from the measured position; physics runs at h = dt/20 (20 kHz),
-semi-implicit Euler with the stick and zero-crossing events above. Row k of a log (``time_convention="end"``,
+semi-implicit Euler with the stick and zero-crossing events above. Row k of a log (``time_convention="hold_end"``,
 the project's own convention: ``sim.run`` steps the plant, then stamps ``plant.time_s`` and reads the state)::
 
     time = (k + 1)·dt,  tau_cmd = u_k (computed from y(k·dt), held over (k·dt, (k+1)·dt]),  q = y((k + 1)·dt)
@@ -79,7 +79,7 @@ SUBSTEPS = 20  # physics steps per control period: 20 kHz
 HINGE_ENCODER_STEP_RAD = 2 * math.pi / 2**17  # 17-bit absolute encoder, counts per turn
 SLIDE_ENCODER_STEP_M = 1e-6  # 1 µm linear scale
 STICK_FRACTION = 1e-4  # v_stick as a fraction of a typical velocity [1]
-TIME_CONVENTIONS = ("end", "command")
+TIME_CONVENTIONS = ("hold_end", "command")
 
 
 @dataclass(frozen=True)
@@ -437,7 +437,7 @@ def default_encoder_step(joint: str) -> float:
 
 def simulate(plant: Plant, controller: Callable[[int, float], float], n: int, *, seed: int = 0,
              encoder_step: float | None | str = "default", noise_std: float = 0.0, q0: float = 0.0,
-             v0: float = 0.0, time_convention: str = "end", dt: float = CONTROL_PERIOD_S,
+             v0: float = 0.0, time_convention: str = "hold_end", dt: float = CONTROL_PERIOD_S,
              substeps: int = SUBSTEPS) -> Run:
     """Run ``plant`` under ``controller`` for ``n`` control periods.
 
@@ -456,7 +456,7 @@ def simulate(plant: Plant, controller: Callable[[int, float], float], n: int, *,
         White noise added to the position before quantisation [rad | m].
     q0, v0 : float
         Initial position [rad | m] and velocity [rad/s | m/s] (the compliant mass starts with the same).
-    time_convention : {'end', 'command'}
+    time_convention : {'hold_end', 'command'}
     dt : float
         Control period [s].
     substeps : int
@@ -469,7 +469,7 @@ def simulate(plant: Plant, controller: Callable[[int, float], float], n: int, *,
     noise = rng.normal(0.0, noise_std, n + 1) if noise_std else np.zeros(n + 1)
     q_true, v_true, tau = _integrate(plant, controller, n, step, noise.tolist(), q0, v0, dt, substeps)
     measured = quantise(q_true + noise, step)
-    if time_convention == "end":
+    if time_convention == "hold_end":
         time, q_rows = np.arange(1, n + 1) * dt, slice(1, n + 1)
     else:
         time, q_rows = np.arange(n) * dt, slice(0, n)

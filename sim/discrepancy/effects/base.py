@@ -171,6 +171,7 @@ class Effect:
     rigs: ClassVar[frozenset[str]] = ALL_RIGS  # kinds of rig it applies to
     signature: ClassVar[str] = ""  # diagnostics signature that points at it
     order: ClassVar[int] = 100  # position in reports and candidate lists
+    refined_starts: ClassVar[int] = 1  # a fit refines the best this many starts (a cost with several minima)
 
     @property
     def keys(self) -> tuple[str, ...]:

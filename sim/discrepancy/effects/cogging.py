@@ -45,6 +45,7 @@ class Cogging(Effect):
               Param("cogging_phase", "rad", "rad", "phase φ at position 0", neutral=None, cyclic=True))
     signature = "position modulo candidate periods"
     order = 30
+    refined_starts = 3
 
     def bounds(self, key, scale, theta):
         if key == "cogging_amplitude":

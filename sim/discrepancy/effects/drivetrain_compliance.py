@@ -55,6 +55,7 @@ class DrivetrainCompliance(Effect):
     rigs = RIGID_RIGS
     signature = "a resonance in the acceleration"
     order = 53
+    refined_starts = 3
 
     def bounds(self, key, scale, theta):
         if key == "compliant_fraction":

@@ -36,6 +36,7 @@ class PeriodicDisturbance(Effect):
               Param("disturbance_phase", "rad", "rad", "phase φ at the log's first sample", neutral=None, cyclic=True))
     signature = "a spectral line not locked to position"
     order = 52
+    refined_starts = 2
 
     def bounds(self, key, scale, theta):
         if key == "disturbance_amplitude":

@@ -20,6 +20,7 @@ MIN_LOW_SPEED_FRACTION = 0.02  # >= 2 % of the samples sliding between v_s/3 and
 LOW_SPEED_RANGE = (1e-3, 0.3)  # without a stated v_s: the Stribeck velocity is looked for in this x |v|_max
 MAX_LEVEL_OF_EFFORT = 2.0
 VELOCITY_GRID = (0.3, 1.0, 3.0)  # starts around a stated v_s
+VELOCITY_STARTS = 5  # without one: log-spaced over LOW_SPEED_RANGE
 LEVEL_GRID = (1.0, 1.5, 2.0)  # starts: x the current breakaway level
 PROBE_LEVEL = 1.5  # identifiability: a breakaway this many times the sliding level must show in the log ...
 PROBE_VELOCITY = 0.03  # ... at a Stribeck velocity up to this x the log's top speed (a drop at low speed)
@@ -39,9 +40,10 @@ class StribeckFriction(Effect):
                       "slide": "friction.breakaway"}, valid=(0.0, 1e4)),
         Param("stribeck_velocity", "rad/s", "m/s", "Stribeck velocity v_s", neutral=None, default=1.0,
               fields={"testbed": "friction.stribeck_velocity_rad_s", "hinge": "friction.stribeck_velocity",
-                      "slide": "friction.stribeck_velocity"}, valid=(0.0, 1e3)))
+                      "slide": "friction.stribeck_velocity"}, valid=(0.0, 1e3), firm=True))
     signature = "low-speed sign (Stribeck)"
     order = 12
+    refined_starts = VELOCITY_STARTS
 
     def present(self, theta):
         return stated(theta)
@@ -49,16 +51,23 @@ class StribeckFriction(Effect):
     def bounds(self, key, scale, theta):
         if key == "breakaway":
             return theta["coulomb"], MAX_LEVEL_OF_EFFORT * scale.effort
-        return LOW_SPEED_RANGE[0] * scale.velocity, scale.velocity
+        low, high = LOW_SPEED_RANGE  # a drop across the whole speed range is not a Stribeck drop
+        return low * scale.velocity, high * scale.velocity
 
     def starts(self, model, theta):
+        """For each Stribeck velocity of a grid, the breakaway level of LEVEL_GRID that fits best: the cost has
+        a minimum per velocity decade, and a fit refines each (``refined_starts``)."""
         if stated(model.scale.baseline):
             velocities = [theta["stribeck_velocity"] * f for f in VELOCITY_GRID]
         else:
             low, high = LOW_SPEED_RANGE
-            velocities = list(model.scale.velocity * np.geomspace(3 * low, high, 5))
+            velocities = list(model.scale.velocity * np.geomspace(3 * low, high, VELOCITY_STARTS))
         level = max(theta["breakaway"], theta["coulomb"], 1e-12)
-        return [{"stribeck_velocity": v, "breakaway": level * g} for v in velocities for g in LEVEL_GRID], ()
+        starts = []
+        for v in velocities:
+            options = [{"stribeck_velocity": float(v), "breakaway": level * g} for g in LEVEL_GRID]
+            starts.append(min(options, key=lambda start: model.cost({**theta, **start})))
+        return starts, ()
 
     def identifiable(self, model, theta):
         why = needs_sliding(model)

@@ -110,9 +110,8 @@ def test_surrogate_explains_baseline_mujoco_logs(experiment):
 
 
 # Presliding fitted on a baseline current-feedback PI log with the 22-bit motor encoder, against the model's own
-# σ0: measured -3.1 to -3.5 % (seeds 31-33, 10 s logs). While the load-dependent friction of every stuck sample
-# was a band, +18 to +19 %: a stiffer bristle pushed the presliding samples' residual into the band at no cost
-# (docs/discrepancy_limits.md, "Presliding stiffness").
+# σ0: measured -3.1 to -3.5 % (seeds 31-33, 10 s logs). Were the load-dependent friction of every stuck sample a
+# band, a stiffer bristle would push the presliding samples' residual into it at no cost (+18 to +19 %).
 PRESLIDING_BASELINE_TOLERANCE = 0.06
 
 

@@ -184,11 +184,8 @@ def test_presliding_is_declared_unrevealable_at_the_encoder_resolution():
 # Presliding with a fine motor encoder (22 bits per motor turn), hidden in the closed-loop current-feedback log:
 # the torque loop holds the motor stuck through many small load reversals. Measured relative errors of σ0 on
 # seeds 21/22/23: -4.6 %, -3.4 %, -4.4 % (seeds 24-27 outside the suite: -4.9, -3.4, -3.3, -3.8 %; an ideal
-# encoder -6.7 to -7.5 %). Before session 13 +14.3 %, +11.3 %, +13.4 % (24-27 up to +19.2 %) against a 15 %
-# tolerance: the surrogate let the load-dependent friction take any value in its band on presliding samples,
-# where MuJoCo's frictionloss row sits at the band's edge (docs/discrepancy_limits.md, "Presliding stiffness").
-# The open-loop locked swing does not reveal it even with an ideal encoder: σ0 9 % off and a 8.4 % held-out
-# gain, below the 10 % rule (seed 21, measured before session 13).
+# encoder -6.7 to -7.5 %). The open-loop locked swing does not reveal it even with an ideal encoder (σ0 9 % off,
+# an 8.4 % held-out gain, below the gain rule).
 PRESLIDING_TOLERANCE = 0.08
 
 
@@ -203,10 +200,9 @@ def test_presliding_is_recovered_with_a_fine_motor_encoder(seed):
     _check(result, truth, "presliding_friction", {"presliding_stiffness": (PRESLIDING_TOLERANCE, "relative")})
 
 
-# Sensor-feedback PI logs with the 22-bit encoder give a Coulomb level ~13 % low (seed 31: 0.078 for 0.09 N·m,
-# consistency t 2.49): the surrogate's bias, not a discrepancy. Its held-out gain is at most 9.6 % (seeds 31-37;
-# 20 % before session 13), under rule (a); rule 3 would also reject it, measuring the move from the same fit on
-# the model's own log (seed 31: 0.077; docs/discrepancy_limits.md).
+# Sensor-feedback PI logs with the 22-bit encoder give a Coulomb level ~13 % low (seed 31: 0.078 for 0.09 N·m):
+# the surrogate's bias, not a discrepancy. Its held-out gain is at most 9.6 % (seeds 31-37), under the gain rule;
+# rule 'moved' would also reject it, measuring the move from the same fit on the model's own log (seed 31: 0.077).
 @pytest.mark.slow
 @pytest.mark.parametrize("seed", (31, 32, 33, 35))
 @pytest.mark.parametrize("experiment", TESTBED_EXPERIMENTS)  # the rigid joints have no motor encoder
@@ -287,10 +283,10 @@ RECOVERY_BASELINES = {"grid_best": GRID_BEST_OVERRIDES, "random_7": random_basel
                       "random_19": random_baseline_overrides(19)}
 
 
-# The stuck band's known upward bias on a low μ (docs/discrepancy_limits.md, "Load-dependent friction at a low
-# coefficient"): on random_7 a μ drawn below the baseline's comes out 4.4-7.0 % high on seeds 21, 23, 27, 28 (4.5-6.4 %
-# before the motor's hyperbolic map, 2026-11-25; seed 21 then passed at 4.95 %); drawn above it, within 1 %.
-LOW_MU_BIAS = pytest.mark.xfail(strict=True, reason="surrogate's low-μ bias exceeds the 5 % tolerance (issue 6)")
+# The stuck band's upward bias on a low μ: where most samples are stuck, the band ±μ|τ| absorbs any other residual,
+# so a larger μ always lowers it. On random_7 a μ drawn below the baseline's comes out 4.4-7.0 % high on seeds 21,
+# 23, 27, 28; drawn above it, within 1 %.
+LOW_MU_BIAS = pytest.mark.xfail(strict=True, reason="the surrogate's low-μ bias exceeds the 5 % tolerance")
 
 
 @pytest.mark.slow

@@ -4,7 +4,7 @@ Rule 3 of the significance test (:mod:`sim.discrepancy.selection`) asks an effec
 to move one of its parameters by ``min_parameter_change``. Measured from the model's own value, that counts the
 estimator's bias as a discrepancy: the surrogate evaluates the plant's physics backwards from filtered,
 quantised signals and does not return the plant's parameters exactly (a Coulomb level ~13 % low on
-sensor-feedback logs with a 22-bit motor encoder; docs/discrepancy_limits.md). The reference is therefore the
+sensor-feedback logs with a 22-bit motor encoder). The reference is therefore the
 same candidate fitted, by the same procedure, on a log the current model produced under the same command: the
 model's MuJoCo plant driven open loop by the log's ``tau_cmd`` from the log's first measured positions at rest, measured
 like the log (the columns the log has, each position quantised at the log's own smallest step, white noise at

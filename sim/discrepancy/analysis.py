@@ -42,7 +42,17 @@ from sim.discrepancy.selection import (
     make_pool,
     run_round,
 )
-from sim.discrepancy.signals import AnalysisConfig, Prepared, Segment, prepare, rms
+from sim.discrepancy.signals import (
+    MAX_ANALYSIS_SAMPLES,
+    AnalysisConfig,
+    Prepared,
+    Segment,
+    decimate,
+    decimation_factor,
+    prepare,
+    rms,
+    smallest_step,
+)
 from sim.discrepancy.structure import Structure, residual_structure
 from sim.runlog import RunLog
 
@@ -156,6 +166,35 @@ class Source:
     log: RunLog
 
 
+def _segments(sources: list[Source], config: AnalysisConfig) -> list[Segment] | None:
+    """The joined sources' segments (None for one log): fitted whole when validation logs are held out, else
+    split at ``config.fit_fraction``."""
+    if len(sources) == 1:
+        return None
+    _, segments = join(sources)
+    if not any(s.role == "validation" for s in sources):
+        segments = [(a, b, config.fit_fraction) for a, b, _ in segments]
+    return segments
+
+
+def join_and_prepare(sources: list[Source], rig: Rig, config: AnalysisConfig
+                     ) -> tuple[RunLog, list[Segment], int, Prepared]:
+    """(the sources joined as logged, their segments in the analysis's samples, the decimation factor, the
+    prepared signals): a rigid joint's log longer than MAX_ANALYSIS_SAMPLES is decimated first
+    (:func:`sim.discrepancy.signals.decimation_factor`), keeping its command hold and encoder step."""
+    joined, _ = join(sources)
+    segments = _segments(sources, config) or []
+    dt = float(np.median(np.diff(joined["time"])))
+    factor = decimation_factor(len(joined), dt, config, rig)
+    if factor == 1:
+        return joined, segments, 1, prepare(joined, rig, config, segments=segments or None)
+    resolution = smallest_step(joined["q"])
+    segments = [(-(-a // factor), -(-b // factor), f) for a, b, f in segments]
+    data = prepare(decimate(joined, factor), rig, config, segments=segments or None, hold_s=dt,
+                   resolution=resolution)
+    return joined, segments, factor, data
+
+
 def join(sources: list[Source]) -> tuple[RunLog, list[Segment]]:
     """The sources as one log (each after the previous by one sampling step; the columns they all have) and
     their segments."""
@@ -235,10 +274,7 @@ def analyse(log: RunLog, rig: Rig, config: AnalysisConfig | None = None, *, prog
             raise InputError(f"{name}: {exc}" if len(logs) > 1 else str(exc), column=exc.column, row=exc.row) from None
         conventions.append({"log": name, "time_convention": convention, "from": where})
         sources.append(Source(name, role, to_hold_end(checked, convention)))
-    joined, segments = join(sources)
-    if not validation and len(sources) > 1:
-        segments = [(a, b, config.fit_fraction) for a, b, _ in segments]
-    data = prepare(joined, rig, config, segments=segments or None)
+    joined, segments, factor, data = join_and_prepare(sources, rig, config)
     model = Surrogate(data, rig, config)
     theta0 = model.theta0
     _announce(model, progress)
@@ -331,7 +367,8 @@ def analyse(log: RunLog, rig: Rig, config: AnalysisConfig | None = None, *, prog
     residuals_final = model.residuals(current)
     replay_result: dict[str, Any] = {}
     if replay:
-        replay_result = _replay(joined, rig, extended, data, config, progress, timings)
+        full_rate = data if factor == 1 else prepare(joined, rig, config, segments=_segments(sources, config))
+        replay_result = _replay(joined, rig, extended, full_rate, config, progress, timings)
     timings["total_s"] = time.perf_counter() - t0
     if findings:
         verdict = "found, and an unexplained remainder" if structure.unexplained else "found"
@@ -342,6 +379,9 @@ def analyse(log: RunLog, rig: Rig, config: AnalysisConfig | None = None, *, prog
         "rig": rig.to_dict(),
         "time_convention": conventions,
         "split": _split(data, sources, segments, config),
+        "decimation": ({"factor": factor, "rate_hz": 1.0 / data.dt,
+                        "why": f"the log is longer than {MAX_ANALYSIS_SAMPLES} samples: analysed at the lower rate, "
+                               f"every column low-passed below its Nyquist frequency first"} if factor > 1 else None),
         "free_parameters": {k: {"value": theta[k], "rig": theta0[k], "unit": _unit(k, rig.joint),
                                 **({"at_bound": base_fit.at_bound[k], "bounds": base_fit.bounds[k]}
                                    if k in base_fit.at_bound else {})} for k in free},
@@ -592,18 +632,6 @@ def _model_log_model(sources: list[Source], rig: Rig, config: AnalysisConfig, mo
     current_rig = _extended_rig(rig, model.theta0, current, findings, model)
     replayed = []
     for s in sources:
-        own = prepare(s.log, rig, config) if len(sources) > 1 else model.data
+        own = model.data if len(sources) == 1 and len(model.data.t_full) == len(s.log) else prepare(s.log, rig, config)
         replayed.append(Source(s.name, s.role, model_log(s.log, current_rig, own, config.model_log_seed)))
-    joined, segments = join(replayed)
-    if segments and not any(s.role == "validation" for s in sources):
-        segments = [(a, b, config.fit_fraction) for a, b, _ in segments]
-    return Surrogate(prepare(joined, current_rig, config, segments=segments or None), current_rig, config)
-
-
-def relative_error(result: DiscrepancyResult) -> dict[str, float]:
-    """The final model's relative effort prediction error per log [1]."""
-    return {entry["log"]: entry["relative_effort_error"]["final"] for entry in result.logs}
-
-
-def _finite(x: float) -> float | None:
-    return x if math.isfinite(x) else None
+    return Surrogate(join_and_prepare(replayed, current_rig, config)[3], current_rig, config)

@@ -281,9 +281,9 @@ class Surrogate:
             return d.filt_full(u)
 
         full = self.memo("delivered", command_keys + (theta["peak_effort"],), mapped)
-        # command k is held during (t_k - dt, t_k]: at the hold's centre, then delayed (and lagged)
+        # command k is held during (t_k - hold, t_k]: at the hold's centre, then delayed (and lagged)
         shift = theta["delay"] + self.const.get("current_lag", 0.0)
-        return theta["effort_gain"] * np.interp(d.t - shift, d.t_full - 0.5 * d.dt, full)
+        return theta["effort_gain"] * np.interp(d.t - shift, d.t_full - 0.5 * d.hold_s, full)
 
     def static_level(self, theta: dict[str, float]) -> float:
         """Static (breakaway) friction level [N·m | N]: a rigid joint without a Stribeck drop has one level."""

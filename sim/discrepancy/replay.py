@@ -47,11 +47,16 @@ def held_runs(data: Prepared) -> list[tuple[int, int]]:
     return [(int(data.grid[a]), int(data.grid[b - 1]) + 1) for a, b in zip(starts, stops, strict=True)]
 
 
+MAX_WINDOWS = 120  # at most this many windows, evenly spread over the held-out part (60 s of replay)
+
+
 def _windows(data: Prepared, config: AnalysisConfig) -> list[tuple[int, int]]:
     length = max(2, int(round(config.replay_window_s / data.dt)))
     out = []
     for first, end in held_runs(data):
         out += [(s, min(s + length, end)) for s in range(max(first, 1), end, length) if min(s + length, end) - s >= 2]
+    if len(out) > MAX_WINDOWS:
+        out = [out[i] for i in np.linspace(0, len(out) - 1, MAX_WINDOWS).round().astype(int)]
     return out
 
 

@@ -32,6 +32,9 @@ if TYPE_CHECKING:
 FILTER_ORDER = 4  # Butterworth order of the zero-phase low-pass (8 after filtfilt's two passes)
 GRID_SAMPLES_PER_PERIOD = 4  # analysis grid: samples per period of the filter's cut-off
 MIN_GUARDED_PARTS = 4  # a log must be this many filter guards long in each of the fit and held-out parts
+MAX_ANALYSIS_SAMPLES = 200_000  # a rigid joint's longer log is analysed at a lower rate ...
+MIN_RATE_OF_BAND = 10.0  # ... of at least this many samples per period of the analysis band
+ANTI_ALIAS_OF_NYQUIST = 0.8  # the decimation's low-pass: this fraction of the lower rate's Nyquist frequency
 
 
 @dataclass(frozen=True)
@@ -176,6 +179,7 @@ class Prepared:
     sos: np.ndarray  # the low-pass filter
     load_source: str  # 'loadcell', 'inertia', 'sensor' or 'none': how the transmitted torque is known
     position_resolution: float  # smallest nonzero step of the position [rad | m]
+    hold_s: float  # how long each logged command was held [s] (the log's step, unless decimated)
     has_motor_encoder: bool  # the log has q_motor (the position is the motor's, not the lever's)
     band_fraction: float  # 2·f_c/f_s: independent samples per full-rate sample in the filtered band [1]
 
@@ -229,6 +233,27 @@ def quantise(x: np.ndarray, step: float) -> np.ndarray:
     return np.round(x / step) * step
 
 
+def decimation_factor(samples: int, dt: float, config: AnalysisConfig, rig: Rig) -> int:
+    """How many samples of a rigid joint's log of ``samples`` at step ``dt`` [s] make one sample of the analysis:
+    1 up to MAX_ANALYSIS_SAMPLES, else as many as keep MIN_RATE_OF_BAND samples per period of the band (the
+    testbed keeps every sample: its bristle state follows the motor encoder's every count)."""
+    if rig.model == "testbed" or samples <= MAX_ANALYSIS_SAMPLES:
+        return 1
+    most = int(1.0 / (dt * MIN_RATE_OF_BAND * config.filter_cutoff_hz))
+    return max(1, min(math.ceil(samples / MAX_ANALYSIS_SAMPLES), most))
+
+
+def decimate(log: RunLog, factor: int) -> RunLog:
+    """Every column of ``log`` low-passed below the lower rate's Nyquist frequency (zero-phase) and every
+    ``factor``-th sample kept: what lies above the analysis band goes, the band stays."""
+    t = np.asarray(log["time"], dtype=float)
+    dt = float(np.median(np.diff(t)))
+    sos = butter(FILTER_ORDER, ANTI_ALIAS_OF_NYQUIST * 0.5 / (dt * factor), fs=1.0 / dt, output="sos")
+    columns = {name: (t if name == "time" else sosfiltfilt(sos, np.asarray(values, dtype=float)))[::factor].copy()
+               for name, values in log.columns.items()}
+    return type(log)(columns, dict(log.units), dict(log.meta))
+
+
 def minimum_samples(config: AnalysisConfig, dt: float) -> int:
     """Fewest samples a log at step ``dt`` [s] needs: each of the fit and held-out parts ``MIN_GUARDED_PARTS``
     times the two filter guards, and a few periods of the filter's cut-off."""
@@ -243,8 +268,12 @@ def grid_step(config: AnalysisConfig, dt: float) -> int:
 Segment = tuple[int, int, float]  # a log within a concatenation: [start, stop) samples, its fit fraction
 
 
-def prepare(log: RunLog, rig: Rig, config: AnalysisConfig, *, segments: list[Segment] | None = None) -> Prepared:
+def prepare(log: RunLog, rig: Rig, config: AnalysisConfig, *, segments: list[Segment] | None = None,
+            hold_s: float | None = None, resolution: float | None = None) -> Prepared:
     """Filter and differentiate the log's signals, choose the load source, split fit and held-out parts.
+
+    ``hold_s`` is how long each logged command was held [s] (default: the log's step; a decimated log keeps the
+    original's), ``resolution`` the position encoder's step (default: the log's smallest step).
 
     ``segments`` are the logs a concatenated ``log`` holds (default: one, split at ``config.fit_fraction``): each
     is split into a leading fit part (its fraction; 1.0 fits the whole log, an estimation record whose
@@ -311,7 +340,8 @@ def prepare(log: RunLog, rig: Rig, config: AnalysisConfig, *, segments: list[Seg
                     velocity=velocity[grid], acceleration=acceleration[grid], q=q, lever_acceleration=lever_acc,
                     tau_loadcell=tau_lc, tau_sensor=tau_s, temperature=temperature, fit=fit, held=held,
                     split_time=float(t[split]), sos=sos, load_source=load_source,
-                    position_resolution=smallest_step(position), has_motor_encoder=has("q_motor"),
+                    position_resolution=smallest_step(position) if resolution is None else resolution,
+                    hold_s=dt if hold_s is None else hold_s, has_motor_encoder=has("q_motor"),
                     band_fraction=min(1.0, 2.0 * config.filter_cutoff_hz * dt))
 
 

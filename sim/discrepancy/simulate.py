@@ -23,6 +23,7 @@ A rigid joint is a one-body MJCF: ``frictionloss`` at the static level (stick), 
 
 from __future__ import annotations
 
+import functools
 import math
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -180,6 +181,12 @@ def rigid_xml(rig: Rig) -> str:
 </mujoco>"""
 
 
+@functools.lru_cache(maxsize=8)
+def _compiled(xml: str) -> mujoco.MjModel:
+    """The compiled model of an MJCF text (the windows of one replay share their rig's)."""
+    return mujoco.MjModel.from_xml_string(xml)
+
+
 def stribeck_giveback(rig: Rig) -> Callable[[float], float] | None:
     """qd -> the sliding friction a rigid joint's static ``frictionloss`` overstates, ``(F_s - g(v))·sign(v)``
     [N·m | N] (None without a Stribeck drop)."""
@@ -194,7 +201,7 @@ def run_rigid(rig: Rig, command: CommandFn, n_ticks: int, *, initial: InitialSta
               previous_commands: np.ndarray | None = None) -> SimulatedRun:
     """Run a rigid joint rig; columns time, tau_cmd, q, qd (SI: N and m for a slide). ``initial`` and
     ``previous_commands`` as for :func:`run_testbed` (the delay buffer holds the past commands)."""
-    model = mujoco.MjModel.from_xml_string(rigid_xml(rig))
+    model = _compiled(rigid_xml(rig))
     data = mujoco.MjData(model)
     if initial is not None:
         initial(model, data)

@@ -64,8 +64,8 @@ def bench_60s(experiment: str, duration_s: float, workers: int, seed: int) -> di
             per_effect[c["effect"]] += c["seconds"]
     print(f"{duration_s:g} s {experiment} testbed log ({len(log)} samples, made in {make_s:.1f} s, not timed), hidden "
           f"{', '.join(HIDDEN[experiment])}; found {', '.join(result.found) or 'nothing'}")
-    print(f"  analysis with replay: {wall:.1f} s wall (target {TARGET_60S_WALL_S:g} s: {wall / TARGET_60S_WALL_S:.2f}x) "
-          f"with {workers} worker(s); load average before {load:.2f}")
+    print(f"  analysis with replay: {wall:.1f} s wall (target {TARGET_60S_WALL_S:g} s: "
+          f"{wall / TARGET_60S_WALL_S:.2f}x) with {workers} worker(s); load average before {load:.2f}")
     for key, value in timings.items():
         print(f"    {key:<16s} {value:7.2f} s")
     print(f"    candidate fits summed over {len(result.baseline['candidates'])} round(s), CPU: "

@@ -22,8 +22,15 @@ from __future__ import annotations
 import sys
 from pathlib import Path
 
-from experiments.common import (add_output_args, add_rerun_args, check_output_paths, cli_parser, positive_int,
-                                record_rerun, write_outputs)
+from experiments.common import (
+    add_output_args,
+    add_rerun_args,
+    check_output_paths,
+    cli_parser,
+    positive_int,
+    record_rerun,
+    write_outputs,
+)
 from sim.discrepancy.analysis import DiscrepancyResult, analyse
 from sim.discrepancy.checks import InputError
 from sim.discrepancy.report import format_result, plot_result
@@ -85,7 +92,8 @@ def jitter_fraction(text: str) -> float:
 
 def main(argv: list[str] | None = None) -> None:
     parser = cli_parser(__doc__, __spec__.name)
-    parser.add_argument("log", type=Path, nargs="+", help="run log(s) of one rig (.csv, .parquet, .mat), fitted together")
+    parser.add_argument("log", type=Path, nargs="+",
+                        help="run log(s) of one rig (.csv, .parquet, .mat), fitted together")
     parser.add_argument("--rig", type=Path, required=True, metavar="TOML", help="rig description")
     parser.add_argument("--validate", type=Path, nargs="+", default=[], metavar="LOG",
                         help="validation log(s) of the same rig: fit the estimation logs whole, score on these")

@@ -22,8 +22,14 @@ from experiments.common import MAX_DURATION_S, add_no_figures_arg, check_output_
 from sim.discrepancy.effects import EFFECTS
 from sim.discrepancy.rig import save_rig
 from sim.discrepancy.signals import AnalysisConfig, minimum_samples
-from sim.discrepancy.synth import (EXPERIMENTS, FINE_MOTOR_ENCODER_COUNTS, MOTOR_ENCODER_COUNTS, REVEALING_EXPERIMENT,
-                                   baseline_rig, hidden_effect_log)
+from sim.discrepancy.synth import (
+    EXPERIMENTS,
+    FINE_MOTOR_ENCODER_COUNTS,
+    MOTOR_ENCODER_COUNTS,
+    REVEALING_EXPERIMENT,
+    baseline_rig,
+    hidden_effect_log,
+)
 from sim.logio import write_log
 
 DEFAULT_EFFECT = "coulomb_friction"

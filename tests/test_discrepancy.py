@@ -14,6 +14,8 @@ import pytest
 
 from experiments import discrepancy as cli
 from sim.discrepancy.analysis import analyse
+from sim.discrepancy.effects.load_dependent_friction import DOWN as LOAD_COEFFICIENT_DOWN
+from sim.discrepancy.effects.load_dependent_friction import UP as LOAD_COEFFICIENT_UP
 from sim.discrepancy.model import Surrogate, baseline_theta, bristle_state
 from sim.discrepancy.rig import load_rig, rig_from_dict, rig_to_toml
 from sim.discrepancy.selection import ChannelScore, event_test, moved_enough, passes_events
@@ -30,8 +32,6 @@ from sim.discrepancy.synth import (
     hidden_effect_log,
     random_baseline_overrides,
 )
-from sim.discrepancy.effects.load_dependent_friction import DOWN as LOAD_COEFFICIENT_DOWN
-from sim.discrepancy.effects.load_dependent_friction import UP as LOAD_COEFFICIENT_UP
 from sim.logio import write_log
 
 DURATION_S = 8.0  # short logs: 4.8 s fit, 3.2 s held out
@@ -91,7 +91,8 @@ def test_surrogate_bristle_state_follows_mujoco():
     g = fr.coulomb_torque_nm + (fr.breakaway_torque_nm - fr.coulomb_torque_nm) * np.exp(
         -(v / fr.stribeck_velocity_rad_s) ** 2)
     sigma0 = fr.presliding_stiffness_nm_per_rad
-    error = sosfiltfilt(butter(4, 25.0, fs=1000.0, output="sos"), sigma0 * (bristle_state(v, g, sigma0, 1e-3) - z_mujoco))
+    error = sosfiltfilt(butter(4, 25.0, fs=1000.0, output="sos"),
+                        sigma0 * (bristle_state(v, g, sigma0, 1e-3) - z_mujoco))
     assert np.sqrt(np.mean(error[100:-100] ** 2)) < BRISTLE_MISMATCH_NM
     assert np.abs(sigma0 * z_mujoco).max() > 0.5 * fr.coulomb_torque_nm  # the swing reverses through sliding
 

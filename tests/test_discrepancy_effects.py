@@ -479,7 +479,7 @@ def test_linear_sensor_effects_explain_the_sensor_channel():
 def triangle(peaks: list[float], step: float) -> np.ndarray:
     """Straight segments between successive ``peaks`` in steps of ``step`` [N·m]."""
     out = [np.array([peaks[0]])]
-    for a, b in zip(peaks[:-1], peaks[1:]):
+    for a, b in zip(peaks[:-1], peaks[1:], strict=True):
         n = int(round(abs(b - a) / step))
         out.append(np.linspace(a, b, n + 1)[1:])
     return np.concatenate(out)
@@ -490,7 +490,7 @@ def hysteresis_by_hand(peaks: list[float], step: float, height: float, span: flo
     start (p_0 = τ_0; p_r = τ_r - gap_r after a reversal at τ_r) until τ - p reaches ±S, so the gap τ - p is
     min(τ - p_r, S) on a rising segment and max(τ - p_r, -S) on a falling one."""
     out, p_r = [np.array([0.0])], peaks[0]
-    for a, b in zip(peaks[:-1], peaks[1:]):
+    for a, b in zip(peaks[:-1], peaks[1:], strict=True):
         n = int(round(abs(b - a) / step))
         tau = np.linspace(a, b, n + 1)[1:]
         gap = np.minimum(tau - p_r, span) if b > a else np.maximum(tau - p_r, -span)

@@ -13,9 +13,9 @@ from sim.discrepancy.analysis import analyse
 from sim.discrepancy.synth import (
     EXPERIMENTS,
     FINE_MOTOR_ENCODER_COUNTS,
-    TESTBED_EXPERIMENTS,
     GRID_BEST_OVERRIDES,
     REVEALING_EXPERIMENT,
+    TESTBED_EXPERIMENTS,
     hidden_effect_log,
     random_baseline_overrides,
 )

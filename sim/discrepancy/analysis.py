@@ -519,13 +519,15 @@ def _log_errors(model: Surrogate, sources: list[Source], segments: list[Segment]
         part = inside & (d.held if fraction < 1.0 else (d.fit | d.held))
         ok = part & np.isfinite(before) & np.isfinite(after)
         norm = float(np.linalg.norm(command[ok]))
-        error = lambda r: float(np.linalg.norm(r[ok])) / norm if norm > 0 else float("nan")  # noqa: E731
+        errors = {name: float(np.linalg.norm(r[ok])) / norm if norm > 0 else float("nan")
+                  for name, r in (("baseline", before), ("final", after))}
         out.append({"log": source.name, "role": source.role, "scored": "held-out part" if fraction < 1.0 else "whole",
-                    "relative_effort_error": {"baseline": error(before), "final": error(after)}})
+                    "relative_effort_error": errors})
     return out
 
 
-def autocorrelation(r: np.ndarray, step_s: float, lags_s: tuple[float, ...] = (0.01, 0.02, 0.1, 0.5)) -> dict[str, float]:
+def autocorrelation(r: np.ndarray, step_s: float,
+                    lags_s: tuple[float, ...] = (0.01, 0.02, 0.1, 0.5)) -> dict[str, float]:
     """Normalised autocorrelation of a residual sampled every ``step_s`` at ``lags_s`` [1] (white noise: ~0)."""
     r = r[np.isfinite(r)]
     if len(r) < 2:

@@ -70,7 +70,8 @@ def bounds_of(key: str, model: Surrogate, theta: dict[str, float], fitting: tupl
     return low, high
 
 
-def residual_vector(model: Surrogate, theta: dict[str, float], mask: np.ndarray, scales: dict[str, float]) -> np.ndarray:
+def residual_vector(model: Surrogate, theta: dict[str, float], mask: np.ndarray,
+                    scales: dict[str, float]) -> np.ndarray:
     """Stacked, scaled residuals of every channel on ``mask`` [1]; samples that do not count are zeros (not
     dropped: the vector keeps its length while the parameters move the kinematic channel's contact set)."""
     parts = []
@@ -112,8 +113,8 @@ def fit_keys(model: Surrogate, theta0: dict[str, float], keys: tuple[str, ...], 
         r = residual_vector(model, theta, mask, scales)
         return float(r @ r)
 
-    screened = sorted(((cost_of(t), i, t) for i, t in enumerate([dict(theta0)] + [{**theta0, **s} for s in starts or []])),
-                      key=lambda e: (e[0], e[1]))
+    candidates = [dict(theta0)] + [{**theta0, **s} for s in starts or []]
+    screened = sorted(((cost_of(t), i, t) for i, t in enumerate(candidates)), key=lambda e: (e[0], e[1]))
     keys = tuple(k for k in keys if k not in held)
     bounds = {k: bounds_of(k, model, theta0, keys, widen) for k in keys}
     if not keys:

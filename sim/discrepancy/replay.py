@@ -220,7 +220,8 @@ def _measured(log: RunLog, rig: Rig, data: Prepared, windows: list[tuple[int, in
     return np.concatenate(parts)
 
 
-def replay_held_out(log: RunLog, baseline: Rig, extended: Rig, data: Prepared, config: AnalysisConfig) -> dict[str, Any]:
+def replay_held_out(log: RunLog, baseline: Rig, extended: Rig, data: Prepared,
+                    config: AnalysisConfig) -> dict[str, Any]:
     """Replay the held-out windows through both rigs; RMSE of each against the measured signal."""
     windows = _windows(data, config)
     if not windows:

@@ -64,8 +64,9 @@ def format_result(result: DiscrepancyResult) -> str:
             ev = f.evidence
             correlation = ev["correlation_before"]
             lines.append(f"  {i}. {f.effect} ({what}): {params}")
-            lines.append(f"     held-out {ev['channel']} RMSE {f.rmse_heldout_before:.4g} -> {f.rmse_heldout_after:.4g} "
-                         f"({100 * f.gain:.1f} % better); ΔBIC {ev['delta_bic']:.1f}, events z {ev['event_z']:.2f}"
+            lines.append(f"     held-out {ev['channel']} RMSE {f.rmse_heldout_before:.4g} -> "
+                         f"{f.rmse_heldout_after:.4g} ({100 * f.gain:.1f} % better); ΔBIC {ev['delta_bic']:.1f}, "
+                         f"events z {ev['event_z']:.2f}"
                          + (f"; '{ev['signature']}' correlates {correlation:+.3f} with the residual before"
                             if correlation is not None and math.isfinite(correlation) else ""))
     if result.rejected:
@@ -73,14 +74,15 @@ def format_result(result: DiscrepancyResult) -> str:
         for r in result.rejected:
             params = ", ".join(f"{k} = {v['value']:.4g} {v['unit']}".rstrip() for k, v in r["parameters"].items())
             note = f"; {r['note']}" if r["note"] else ""
-            bound = f"; at bound: {', '.join(f'{k} ({side})' for k, side in r['at_bound'].items())}" if r["at_bound"] else ""
+            sides = ", ".join(f"{k} ({side})" for k, side in r["at_bound"].items())
+            bound = f"; at bound: {sides}" if sides else ""
             lines.append(f"  {r['effect']}: {100 * r['gain']:.1f} % gain, refused by '{r['rejected_by']}' "
                          f"({params}{bound}{note})")
     s = result.structure
     if s.unexplained:
         lines.append("Unexplained: the residual holds a discrepancy the library does not name:")
         lines += [f"  {line}" for line in s.description + s.refused]
-    lines.append(f"Residual left (held out): " + ", ".join(f"{c} {v:.4g} {result.units[c]}"
+    lines.append("Residual left (held out): " + ", ".join(f"{c} {v:.4g} {result.units[c]}"
                                                           for c, v in s.rmse.items() if math.isfinite(v))
                  + f"; a generic model of it gains {100 * s.generic_gain:.1f} %; Ljung-Box p "
                  f"{s.whiteness.get('p_value', float('nan')):.3g}")

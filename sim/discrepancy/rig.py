@@ -144,7 +144,7 @@ class Rig:
         table = TESTBED_FREE if self.model == "testbed" else RIGID_FREE
         return tuple(table[name] for name in self.free)
 
-    def with_effects(self, effects: tuple[AddedEffect, ...], theta_native: dict[str, float]) -> "Rig":
+    def with_effects(self, effects: tuple[AddedEffect, ...], theta_native: dict[str, float]) -> Rig:
         """A copy with ``effects`` added and native values (baseline parameters) replaced by theta values."""
         rig = self
         if theta_native:
@@ -426,7 +426,8 @@ def rig_to_toml(rig: Rig, header: str = "") -> str:
         for theta_key, key in inverse.items():
             if theta_key in rig.rigid:
                 _, unit_h, unit_s, *_ = _RIGID_FIELDS[key]
-                lines.append(f"{key} = {_toml_value(rig.rigid[theta_key])}  # {unit_s if rig.joint == 'slide' else unit_h}")
+                unit = unit_s if rig.joint == "slide" else unit_h
+                lines.append(f"{key} = {_toml_value(rig.rigid[theta_key])}  # {unit}")
     lines.append(f"free = {_toml_value(list(rig.free))}")
     if rig.model == "testbed":
         for group, values in rig.overrides.items():

@@ -11,9 +11,9 @@ significance rule as a candidate effect):
 - the strongest lines of the residual's spectrum on the fit part (each a sine and a cosine in time).
 
 The command itself is not in the basis: with it, the basis holds every term of the balance and rebuilds any
-residual by scaling the whole balance to nothing. If the final model's held-out effort error exceeds ``max_remainder`` of the command (RMS), or if that generic
-model explains a significant part of the held-out residual (the candidates' rules 'bic',
-'gain', 'size' and 'events'), the verdict is a discrepancy the
+residual by scaling the whole balance to nothing. If the final model's held-out effort error exceeds
+``max_remainder`` of the command (RMS), or if that generic model explains a significant part of the held-out
+residual (the candidates' rules 'bic', 'gain', 'size' and 'events'), the verdict is a discrepancy the
 library does not name, described by the basis terms that carry it ("effort error grows with v|v|", "a 6.0 Hz
 line not locked to position"), with the RMSE it leaves. So is a candidate effect that would explain a third or
 more of the residual but was refused because its parameters sit at a bound of the rig's plausible range or drift
@@ -99,7 +99,8 @@ class Structure:
 
     def to_dict(self) -> dict[str, Any]:
         return {"unexplained": self.unexplained, "description": self.description, "rmse": self.rmse,
-                "generic_gain": self.generic_gain, "remainder_fraction": self.remainder_fraction, "terms": self.terms, "lines": self.lines,
+                "generic_gain": self.generic_gain, "remainder_fraction": self.remainder_fraction,
+                "terms": self.terms, "lines": self.lines,
                 "whiteness": self.whiteness, "refused": self.refused}
 
 
@@ -200,8 +201,8 @@ def residual_structure(model: Surrogate, theta: dict[str, float], current: Chann
     nearest = []
     for c in refused:
         if c.rejected_by in UNEXPLAINED_RULES and c.gain >= NEAREST_GAIN:
-            why = (f"its {', '.join(c.at_bound)} sits at a bound of the rig's plausible range" if c.rejected_by == "bound"
-                   else c.note)
+            why = (f"its {', '.join(c.at_bound)} sits at a bound of the rig's plausible range"
+                   if c.rejected_by == "bound" else c.note)
             nearest.append(f"{c.effect} would explain {100 * c.gain:.0f} % of the held-out error, but {why}")
     if significant and not description:
         description.append("the residual holds structure no single basis term carries")

@@ -160,7 +160,8 @@ def draw_effect(name: str, rig: Rig, rng: np.random.Generator) -> tuple[dict[str
     """
     effect = spec(name)
     if not effect.applies(rig):
-        raise ValueError(f"{name} does not apply to a {rig_kind(rig)} rig (it applies to: {', '.join(sorted(effect.rigs))})")
+        raise ValueError(f"{name} does not apply to a {rig_kind(rig)} rig (it applies to: "
+                         f"{', '.join(sorted(effect.rigs))})")
     values = effect.draw(rig, rng)
     if effect.native(rig):
         return values, {}
@@ -235,8 +236,9 @@ def synth_log(experiment: str, truth: Rig, duration_s: float, seed: int, *,
     if experiment in RIGID_EXPERIMENTS:
         joint = experiment.split("_")[0]
         slide = joint == "slide"
-        swing, kp, kd, limit = ((SLIDE_SWING_M, SLIDE_KP_N_PER_M, SLIDE_KD_NS_PER_M, SLIDE_COMMAND_LIMIT_N) if slide
-                                else (HINGE_SWING_RAD, HINGE_KP_NM_PER_RAD, HINGE_KD_NMS_PER_RAD, HINGE_COMMAND_LIMIT_NM))
+        swing, kp, kd, limit = (
+            (SLIDE_SWING_M, SLIDE_KP_N_PER_M, SLIDE_KD_NS_PER_M, SLIDE_COMMAND_LIMIT_N) if slide
+            else (HINGE_SWING_RAD, HINGE_KP_NM_PER_RAD, HINGE_KD_NMS_PER_RAD, HINGE_COMMAND_LIMIT_NM))
         if experiment.endswith("_moves"):
             reference = lambda t: point_to_point(t, MOVES[joint])  # noqa: E731
         else:

@@ -13,7 +13,18 @@ from __future__ import annotations
 import importlib
 import pkgutil
 
-from sim.discrepancy.effects.base import ALL_RIGS, HINGE, RIGID_RIGS, SLIDE, TESTBED, Effect, Param, Realisation, Scale, rig_kind
+from sim.discrepancy.effects.base import (
+    ALL_RIGS,
+    HINGE,
+    RIGID_RIGS,
+    SLIDE,
+    TESTBED,
+    Effect,
+    Param,
+    Realisation,
+    Scale,
+    rig_kind,
+)
 
 
 def _discover() -> dict[str, Effect]:

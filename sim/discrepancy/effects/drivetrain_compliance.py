@@ -47,7 +47,8 @@ def spring_and_damper(mass: float, fraction: float, frequency_hz: float, damping
 class DrivetrainCompliance(Effect):
     name = "drivetrain_compliance"
     description = "a second mass behind a spring-damper (belt, long shaft, harmonic drive)"
-    params = (Param("compliant_fraction", "1", "1", "compliant part of the inertia φ = m2/m", valid=(0.0, 1.0), firm=True),
+    params = (Param("compliant_fraction", "1", "1", "compliant part of the inertia φ = m2/m", valid=(0.0, 1.0),
+                    firm=True),
               Param("resonance_frequency", "Hz", "Hz", "frequency of the two masses' mode f_r", neutral=None,
                     default=10.0, valid=(0.0, math.inf), firm=True),
               Param("damping_ratio", "1", "1", "damping ratio of that mode ζ", neutral=None, default=DAMPING_START,

@@ -6,7 +6,7 @@ from __future__ import annotations
 from sim.discrepancy.effects.base import Effect, Param, Realisation, up_or_down
 from sim.motor_torque import CurrentToTorqueMap
 
-RANGE = (0.5, 2.0)  # fit bound: x the rig's gain (a drive whose torque constant is off by more is not one the rig describes)
+RANGE = (0.5, 2.0)  # fit bound: x the rig's gain (a torque constant off by more is not the rig's)
 UP, DOWN = (1.05, 1.15), (0.85, 0.95)  # synthetic draws: x the rig's gain
 
 

@@ -73,7 +73,8 @@ class Gravity(Effect):
         coef = linear_starts(model, theta, [np.sin(q), -np.cos(q)])  # A·sin(q - q0) = A cos q0 sin q - A sin q0 cos q
         if coef is None:
             return [], ()
-        return [{"gravity_amplitude": float(math.hypot(*coef)), "gravity_angle": float(math.atan2(coef[1], coef[0]))}], ()
+        return [{"gravity_amplitude": float(math.hypot(*coef)),
+                 "gravity_angle": float(math.atan2(coef[1], coef[0]))}], ()
 
     def identifiable(self, model, theta):
         if model.kind == SLIDE:

@@ -84,7 +84,7 @@ def format_result(result: DiscrepancyResult) -> str:
         lines += [f"  {line}" for line in s.description + s.refused]
     lines.append("Residual left (held out): " + ", ".join(f"{c} {v:.4g} {result.units[c]}"
                                                           for c, v in s.rmse.items() if math.isfinite(v))
-                 + f"; a generic model of it gains {100 * s.generic_gain:.1f} %; Ljung-Box p "
+                 + f"; a generic model of it explains {max(100 * s.generic_gain, 0.0):.1f} %; Ljung-Box p "
                  f"{s.whiteness.get('p_value', float('nan')):.3g}")
     lines.append("Relative effort prediction error ‖F - F̂‖/‖F‖ (F the command in the analysis band):")
     for entry in result.logs:

@@ -65,6 +65,7 @@ LARGE_GAIN = 1.0 / 3.0  # a candidate explaining this much passes 'events' on th
 LARGE_GAIN_BLOCK_SHARE = 2.0 / 3.0  # ... if it improves this share of them
 MATERIAL_BLOCK_SHARE = 0.02  # a block changes materially if its |drop| is above 2 % of the summed |drops|
 MIN_BLOCKS = 4  # the block test needs at least four blocks
+MIN_BLOCKS_HELD = 8  # a short held-out part is cut into at least this many blocks
 
 
 @dataclass(frozen=True)
@@ -159,6 +160,13 @@ def effort_change(before: ChannelScore, after: ChannelScore) -> float:
     return float(np.sqrt(np.mean((b[ok] - a[ok]) ** 2))) if ok.any() else 0.0
 
 
+def block_samples(model: Surrogate) -> int:
+    """Grid samples per block of rule 'events': ``block_s``, shorter on a short held-out part so that it holds
+    MIN_BLOCKS_HELD blocks."""
+    per_block = model.config.block_s / (model.data.dt * model.data.grid_step)
+    return max(1, int(round(min(per_block, int(model.data.held.sum()) / MIN_BLOCKS_HELD))))
+
+
 def block_drops(before: ChannelScore, after: ChannelScore, block: int) -> np.ndarray:
     """Drop of the squared residuals summed per block of ``block`` samples, channels weighted by their mean
     square before [1]."""
@@ -244,7 +252,7 @@ def fit_candidate(model: Surrogate, effect: str, theta: dict[str, float], accept
     after = held_out_score(model, outcome.theta)
     delta, gains = compare(before, after, len(EFFECTS[effect].keys))
     gain = max(gains.values()) if gains else 0.0
-    block = max(1, int(round(cfg.block_s / (model.data.dt * model.data.grid_step))))
+    block = block_samples(model)
     z, share = event_test(before, after, block)
     change = effort_change(before, after)
     checks = {"bound": not at_bound, "bic": delta < -cfg.min_ic_drop, "gain": gain >= cfg.min_relative_gain,

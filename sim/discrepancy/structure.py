@@ -33,7 +33,15 @@ from scipy.stats import chi2
 from sim.discrepancy.effects import EFFECTS
 from sim.discrepancy.effects.periodic_disturbance import spectral_lines
 from sim.discrepancy.model import Surrogate, channel_unit
-from sim.discrepancy.selection import Candidate, ChannelScore, compare, effort_change, event_test, passes_events
+from sim.discrepancy.selection import (
+    Candidate,
+    ChannelScore,
+    block_samples,
+    compare,
+    effort_change,
+    event_test,
+    passes_events,
+)
 from sim.discrepancy.signals import derivative, rms
 
 SPECTRAL_TERMS = 2  # spectral lines of the residual in the generic basis
@@ -170,7 +178,7 @@ def residual_structure(model: Surrogate, theta: dict[str, float], current: Chann
     fit = d.fit & np.isfinite(residual)
     before = _score(model, residual)
     terms = _basis(model, residual)
-    block = max(1, int(round(cfg.block_s / (d.dt * d.grid_step))))
+    block = block_samples(model)
     ok_fit = fit & np.all(np.isfinite(np.column_stack([c for cols in terms.values() for c in cols])), axis=1)
     after = _score(model, _regress([c for cols in terms.values() for c in cols], residual, ok_fit))
     n_columns = sum(len(c) for c in terms.values())

@@ -85,7 +85,7 @@ class Cogging(Effect):
             return []
         span = float(np.ptp(model.data.position[ok]))
         x, r = model.data.position[ok], residual[ok]
-        total = float(np.sum((r - r.mean()) ** 2))
+        total = float(r @ r)
         out = []
         for period in candidate_periods(model, span):
             if model.testbed:  # a few integer pole counts: the filtered term itself
@@ -94,7 +94,7 @@ class Cogging(Effect):
                 phase = TWO_PI * x / period
                 a = np.column_stack([np.sin(phase), np.cos(phase)])
             coef, *_ = np.linalg.lstsq(a, -r, rcond=None)  # residual - load = 0
-            explained = float(np.sum((a @ coef) ** 2)) / total if total > 0 else 0.0
+            explained = 1.0 - float(np.sum((-r - a @ coef) ** 2)) / total if total > 0 else 0.0
             out.append((explained, {"cogging_amplitude": float(math.hypot(*coef)), "cogging_period": float(period),
                                     "cogging_phase": float(math.atan2(coef[1], coef[0]))}))
         return sorted(out, key=lambda e: -e[0])

@@ -96,9 +96,9 @@ class PeriodicDisturbance(Effect):
         s, c = self._basis(model, lines[0])
         a = np.column_stack([s[ok], c[ok]])
         coef, *_ = np.linalg.lstsq(a, residual[ok], rcond=None)
-        explained = float(np.sum((a @ coef) ** 2))
-        total = float(np.sum((residual[ok] - residual[ok].mean()) ** 2))
-        return math.sqrt(explained / total) if total > 0 else 0.0
+        total = float(residual[ok] @ residual[ok])
+        left = float(np.sum((residual[ok] - a @ coef) ** 2))
+        return math.sqrt(max(0.0, 1.0 - left / total)) if total > 0 else 0.0
 
     def realise(self, values, rig):
         amplitude, frequency, phase = (values["disturbance_amplitude"], values["disturbance_frequency"],

@@ -14,6 +14,7 @@ before anything is simulated. The command draws no figures (--no-plot is accepte
 
 from __future__ import annotations
 
+import dataclasses
 import shlex
 import sys
 from pathlib import Path
@@ -31,6 +32,7 @@ from sim.discrepancy.synth import (
     hidden_effect_log,
 )
 from sim.logio import write_log
+from sim.runlog import HOLD_END
 
 DEFAULT_EFFECT = "coulomb_friction"
 DEFAULT_DURATION_S = 10.0  # [s] the length the hidden-effect sweep recovers every effect from
@@ -86,6 +88,7 @@ def main(argv: list[str] | None = None) -> None:
         parser.error(f"--effect {args.effect} on {experiment!r}: {exc}")
     args.out.mkdir(parents=True, exist_ok=True)
     write_log(log, log_path)
+    rig = dataclasses.replace(rig, time_convention=HOLD_END)  # the synthetic logs' (a CSV cannot say it)
     save_rig(rig, rig_path, header=f"Baseline rig of {log_path.name}, written by experiments.discrepancy_demo "
                                    f"(the hidden {args.effect} is not in it).")
     units = {p.key: p.unit(rig.joint) for p in EFFECTS[args.effect].params}

@@ -83,6 +83,12 @@ def measured_series(log: RunLog, rig: Rig, result: DiscrepancyResult) -> dict[st
     return groups
 
 
+def _names(paths: list[Path]) -> tuple[str, ...]:
+    """The logs' names in the report: their file names, or their paths where two file names are the same."""
+    short = [p.name for p in paths]
+    return tuple(name if short.count(name) == 1 else str(p) for name, p in zip(short, paths, strict=True))
+
+
 def jitter_fraction(text: str) -> float:
     value = float(text)
     if not value >= 0:
@@ -129,7 +135,7 @@ def main(argv: list[str] | None = None) -> None:
     try:
         result = analyse(logs[0], rig, AnalysisConfig(workers=args.workers), progress=True,
                          replay=not args.no_replay, also=tuple(logs[1:n]), validation=tuple(logs[n:]),
-                         names=tuple(p.name for p in paths), unwrap=args.unwrap)
+                         names=_names(paths), unwrap=args.unwrap)
     except InputError as exc:
         parser.error(f"{args.log[0] if n == 1 and not args.validate else 'the logs'}: {exc}")
     except (RigError, ValueError) as exc:

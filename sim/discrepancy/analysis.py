@@ -502,7 +502,8 @@ def _split(data: Prepared, sources: list[Source], segments: list[Segment], confi
         out.update(fit=f"t < {data.split_time:.6g} s (first {100 * config.fit_fraction:g} %)",
                    held_out=f"t >= {data.split_time:.6g} s")
     else:
-        out["logs"] = [{"log": s.name, "role": s.role, "fitted": f"first {100 * f:g} %"}
+        out["logs"] = [{"log": s.name, "role": s.role,
+                        "fitted": "whole" if f == 1.0 else "none (held out)" if f == 0.0 else f"first {100 * f:g} %"}
                        for s, (_, _, f) in zip(sources, segments, strict=True)]
     return out
 
@@ -524,7 +525,8 @@ def _log_errors(model: Surrogate, sources: list[Source], segments: list[Segment]
         norm = float(np.linalg.norm(command[ok]))
         errors = {name: float(np.linalg.norm(r[ok])) / norm if norm > 0 else float("nan")
                   for name, r in (("baseline", before), ("final", after))}
-        out.append({"log": source.name, "role": source.role, "scored": "held-out part" if fraction < 1.0 else "whole",
+        scored = "whole" if fraction in (0.0, 1.0) else "held-out part"
+        out.append({"log": source.name, "role": source.role, "scored": scored,
                     "relative_effort_error": errors})
     return out
 

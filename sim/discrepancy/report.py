@@ -34,7 +34,7 @@ def format_result(result: DiscrepancyResult) -> str:
     b = result.baseline
     split = b["split"]
     if "logs" in split:
-        parts = "; ".join(f"{entry['log']} ({entry['role']}, {entry['fitted']} fitted)" for entry in split["logs"])
+        parts = "; ".join(f"{entry['log']} ({entry['role']}, fitted: {entry['fitted']})" for entry in split["logs"])
         lines = [f"Discrepancy analysis of {len(split['logs'])} logs: {parts}"]
     else:
         lines = [f"Discrepancy analysis: fit part {split['fit']}, held out {split['held_out']}"]

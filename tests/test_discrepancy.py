@@ -382,3 +382,42 @@ def test_the_documented_example_effect_plugs_into_the_surrogate_and_the_simulato
     drawn = effect.draw(rig, np.random.default_rng(0))["detent_stiffness"]
     assert 0.5 * rig.rigid["coulomb"] <= drawn <= 1.5 * rig.rigid["coulomb"]
     assert effect.bounds("detent_stiffness", model.scale, theta) == (0.0, model.scale.effort)
+
+
+def test_the_residual_figure_skips_channels_without_samples_and_ignores_the_filter_edges(tmp_path):
+    """A free-fixture log has no kinematic sample (the lever carries no load): the figure draws no empty panel,
+    raises no warning (the test run turns warnings into errors), and its y-range is that of the samples that
+    count, not of the filter's transient at the log's ends."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    from sim.discrepancy.report import plot_result, robust_limits
+
+    log, rig, _ = hidden_effect_log("free", ["viscous_friction"], 2, 3.0)
+    result = analyse(log, rig)
+    assert not np.isfinite(result.residuals_baseline["kinematic"]).any()
+    paths = plot_result(result, tmp_path)
+    assert (tmp_path / "discrepancy_residuals.png").exists() and len(paths) == 3
+    counted = result.fit | result.held
+    spiky = result.residuals_baseline["effort"].copy()
+    spiky[~counted] = 100.0  # what the filter's edges would draw
+    low, high = robust_limits(np.where(counted, spiky, np.nan))
+    assert high < 100.0
+
+
+def test_a_one_second_log_names_its_hidden_effect_and_states_short_evidence_exactly():
+    """A 1 s log (0.4 s held out) still names a hidden Coulomb level, with a finite signature correlation; what a
+    log cannot reveal is stated with the value seen to three digits (a 0.999 K ramp, filtered)."""
+    import re
+
+    log, rig, truth = hidden_effect_log("free", ["coulomb_friction"], 0, 1.0)
+    result = analyse(log, rig)
+    assert result.found[:1] == ["coulomb_friction"]
+    found = result.findings[0].parameters["coulomb"]["value"]
+    assert found == pytest.approx(truth.effects["coulomb_friction"]["coulomb"], rel=0.05)
+    assert np.isfinite(result.findings[0].evidence["correlation_before"])
+    log2, rig2, _ = hidden_effect_log("locked", [], 0, 2.0)
+    columns = dict(log2.columns)
+    columns["temperature"] = 25.0 + 0.999 * np.linspace(0.0, 1.0, len(log2))
+    why = analyse(type(log2)(columns, log2.units, log2.meta), rig2).baseline["not_identifiable"]
+    assert re.search(r"changes by 0\.99\d K \(needs at least 1 K\)", why["sensor_thermal_drift"])

@@ -314,6 +314,29 @@ def needs_sliding(model: Surrogate) -> str | None:
     return None
 
 
+MIN_INERTIAL_FRACTION = 0.02  # an inertial effect needs the log's inertial effort (RMS) at 2 % of the command's
+
+
+def needs_acceleration(model: Surrogate, theta: dict[str, float]) -> str | None:
+    """Why an effect on the inertial effort cannot be revealed (the log hardly accelerates the joint), or None."""
+    inertial = theta["inertia"] * float(np.sqrt(np.mean(model.data.acceleration**2)))
+    command = float(np.sqrt(np.mean(model.data.u**2)))
+    if inertial < MIN_INERTIAL_FRACTION * command:
+        return (f"the inertial effort is {inertial:.3g} RMS, below {100 * MIN_INERTIAL_FRACTION:g} % of the "
+                f"command's {command:.3g}: the log hardly accelerates the joint")
+    return None
+
+
+def canonical_sine(theta: dict[str, float], amplitude: str, phase: str) -> dict[str, float]:
+    """``A·sin(· + φ)`` with A >= 0 and φ in [-π, π) (``-A·sin(· + φ) = A·sin(· + φ + π)``)."""
+    theta = dict(theta)
+    if theta[amplitude] < 0:
+        theta[amplitude] = -theta[amplitude]
+        theta[phase] += math.pi
+    theta[phase] = wrap_angle(theta[phase])
+    return theta
+
+
 def reversals(velocity: np.ndarray, threshold: float) -> int:
     """Number of motion reversals: sign changes of the velocity among samples with |v| > threshold."""
     moving = np.sign(velocity[np.abs(velocity) > threshold])

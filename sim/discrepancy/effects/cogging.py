@@ -14,7 +14,7 @@ import math
 
 import numpy as np
 
-from sim.discrepancy.effects.base import TWO_PI, Effect, Param, Realisation, wrap_angle
+from sim.discrepancy.effects.base import TWO_PI, Effect, Param, Realisation, canonical_sine
 
 MIN_PERIODS_IN_RANGE = 3  # a period must fit at least 3 times in the position range
 MAX_POLES = 60  # the testbed: pole counts tried, 1..60
@@ -55,12 +55,7 @@ class Cogging(Effect):
         return -2 * math.pi, 2 * math.pi
 
     def canonical(self, theta, joint):
-        theta = dict(theta)
-        if theta["cogging_amplitude"] < 0:
-            theta["cogging_amplitude"] = -theta["cogging_amplitude"]
-            theta["cogging_phase"] += math.pi
-        theta["cogging_phase"] = wrap_angle(theta["cogging_phase"])
-        return theta
+        return canonical_sine(theta, "cogging_amplitude", "cogging_phase")
 
     def basis(self, model, period: float) -> tuple[np.ndarray, np.ndarray]:
         """filt(sin(2π·x/P)), filt(cos(2π·x/P)) on the grid."""

@@ -18,7 +18,7 @@ import math
 import numpy as np
 from scipy.signal import bilinear, lfilter
 
-from sim.discrepancy.effects.base import RIGID_RIGS, TWO_PI, Effect, Param, Realisation
+from sim.discrepancy.effects.base import RIGID_RIGS, TWO_PI, Effect, Param, Realisation, needs_acceleration
 
 FRACTION_RANGE = (0.01, 0.95)
 DAMPING_RANGE = (0.005, 1.0)
@@ -27,7 +27,6 @@ MIN_FREQUENCY_HZ = 1.0
 FREQUENCY_STARTS = 8  # log-spaced resonance frequencies screened
 FRACTION_STARTS = (0.2, 0.5)
 DAMPING_START = 0.05
-MIN_INERTIAL_FRACTION = 0.02  # the inertial effort (RMS) must reach 2 % of the command's
 SYNTHETIC = {"compliant_fraction": (0.2, 0.5), "resonance_frequency": (8.0, 20.0), "damping_ratio": (0.02, 0.1)}
 
 
@@ -84,12 +83,7 @@ class DrivetrainCompliance(Effect):
                 for f in np.geomspace(low, high, FREQUENCY_STARTS) for phi in FRACTION_STARTS], ()
 
     def identifiable(self, model, theta):
-        inertial = theta["inertia"] * float(np.sqrt(np.mean(model.data.acceleration**2)))
-        command = float(np.sqrt(np.mean(model.data.u**2)))
-        if inertial < MIN_INERTIAL_FRACTION * command:
-            return (f"the inertial effort is {inertial:.3g} RMS, below {100 * MIN_INERTIAL_FRACTION:g} % of the "
-                    f"command's {command:.3g}: the log hardly accelerates the joint")
-        return None
+        return needs_acceleration(model, theta)
 
     def signature_signal(self, model, theta):
         return self._filtered(model, 0.3, 0.5 * model.config.filter_cutoff_hz, 0.1)

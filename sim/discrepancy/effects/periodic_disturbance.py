@@ -11,7 +11,7 @@ import math
 
 import numpy as np
 
-from sim.discrepancy.effects.base import TWO_PI, Effect, Param, Realisation, wrap_angle
+from sim.discrepancy.effects.base import TWO_PI, Effect, Param, Realisation, canonical_sine
 
 MAX_OF_EFFORT = 1.0  # fit bound: A up to the largest effort in the log
 MIN_PERIODS_IN_FIT = 5  # the lowest frequency: five periods in the fit part
@@ -46,12 +46,7 @@ class PeriodicDisturbance(Effect):
         return -2 * math.pi, 2 * math.pi
 
     def canonical(self, theta, joint):
-        theta = dict(theta)
-        if theta["disturbance_amplitude"] < 0:
-            theta["disturbance_amplitude"] = -theta["disturbance_amplitude"]
-            theta["disturbance_phase"] += math.pi
-        theta["disturbance_phase"] = wrap_angle(theta["disturbance_phase"])
-        return theta
+        return canonical_sine(theta, "disturbance_amplitude", "disturbance_phase")
 
     def _basis(self, model, frequency: float) -> tuple[np.ndarray, np.ndarray]:
         t = model.data.t - model.data.t_full[0]

@@ -206,8 +206,8 @@ def test_native_cogging_has_the_amplitude_and_period_the_surrogate_uses():
 
 # The free swing's baseline residual sits at the velocity reversals (1.5 mN·m RMS within 60 ms of one, 0.13
 # elsewhere: the 16-bit encoder count against the presliding displacement); a cogging term or a Stribeck curve
-# fitted to those few events passed the held-out BIC with 16-21 % gain until the significance rule's consistency
-# test (rule 4, sim.discrepancy.selection) asked whether the improvement holds across the held-out part.
+# fitted to those few events passes the held-out BIC with 16-21 % gain; rule 'events' (sim.discrepancy.selection)
+# asks whether the improvement holds across the held-out part.
 @pytest.mark.parametrize("experiment", ["locked", "free", "slide"])
 def test_no_hidden_effect_gives_no_finding(experiment):
     """A log of the baseline itself yields the verdict 'no significant discrepancy'."""

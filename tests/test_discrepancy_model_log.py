@@ -1,4 +1,4 @@
-"""Rule 3's reference: the same fit on the model's own log (sim.discrepancy.null).
+"""Rule 'moved''s reference: the same fit on the model's own log (sim.discrepancy.null).
 
 The oracle for the model's log is the simulator itself: a log the baseline produced, replayed open loop with its
 own command from its own initial state, retraces the same motion.
@@ -70,7 +70,7 @@ def test_the_surrogate_bias_on_a_baseline_log_is_not_reported(fine_encoder_senso
     assert coulomb["rejected_by"] == "moved"
     fitted, reference = coulomb["parameters"]["coulomb"], coulomb["model_log_parameters"]["coulomb"]
     model_value = rig.params.friction.coulomb_torque_nm
-    # rule 3 against the model's value would accept it
+    # rule 'moved' against the model's value would accept it
     assert abs(fitted - model_value) > relaxed.min_parameter_change * model_value
     assert abs(fitted - reference) < 0.02 * model_value
 

@@ -1,6 +1,6 @@
 """The model's own log: what the analysis estimates on a log that the current model produced.
 
-Rule 3 of the significance test (:mod:`sim.discrepancy.selection`) asks an effect the baseline already carries
+Rule 'moved' of the significance test (:mod:`sim.discrepancy.selection`) asks an effect the baseline already carries
 to move one of its parameters by ``min_parameter_change``. Measured from the model's own value, that counts the
 estimator's bias as a discrepancy: the surrogate evaluates the plant's physics backwards from filtered,
 quantised signals and does not return the plant's parameters exactly (a Coulomb level ~13 % low on

@@ -101,7 +101,8 @@ def run_torque_loop(plant: Plant, controller: PITorqueController, feedback: Torq
                   {"fixture": plant.fixture, "feedback": feedback.kind, "physics_timestep_s": plant.timestep_s,
                    "lever_length_m": plant.params.lever.length_m,
                    "loadcell_reading_noise_n": plant.params.loadcell.reading_noise_n,
-                   "torque_saturation_per_nm": plant.params.motor.torque_saturation_per_nm, "time_convention": HOLD_END, **(meta or {})})
+                   "torque_saturation_per_nm": plant.params.motor.torque_saturation_per_nm,
+                   "time_convention": HOLD_END, **(meta or {})})
 
 
 def run_admittance_loop(plant: Plant, controller: AdmittanceController, feedback: TorqueFeedback,
@@ -152,4 +153,5 @@ def run_admittance_loop(plant: Plant, controller: AdmittanceController, feedback
     return RunLog(signal_columns(out, times, extra), units,
                   {"fixture": plant.fixture, "feedback": feedback.kind, "physics_timestep_s": plant.timestep_s,
                    "lever_length_m": plant.params.lever.length_m,
-                   "loadcell_reading_noise_n": plant.params.loadcell.reading_noise_n, "time_convention": HOLD_END, **(meta or {})})
+                   "loadcell_reading_noise_n": plant.params.loadcell.reading_noise_n,
+                   "time_convention": HOLD_END, **(meta or {})})

@@ -18,11 +18,9 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from models.errors import ParameterError
+
 INF = math.inf
-
-
-class ParameterError(ValueError):
-    """A parameter set that is not physically valid; the message names the field and its valid range."""
 
 
 def range_text(low: float, high: float, *, low_open: bool = False) -> str:

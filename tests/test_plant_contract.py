@@ -76,7 +76,7 @@ def test_compiled_model_values_equal_the_parameter_set(fixture):
 def test_reference_xml_files_are_current(fixture):
     """models/gim8108_testbed/testbed_<fixture>.xml is what the builder makes of the default parameters."""
     assert reference_xml_path(fixture).read_text() == build_xml(P, fixture), (
-        "regenerate with: python -m models.gim8108_testbed.build")
+        "regenerate with: python -m sim.reference_models")
 
 
 def test_a_diverging_run_raises_and_names_the_timestep():

@@ -1,19 +1,23 @@
 """Build the testbed's MJCF from a parameter set: one model per fixture (``locked`` or ``free``).
 
-Run ``python -m models.gim8108_testbed.build`` to rewrite the reference XML files of the default parameters
-beside this module (a test checks they are current); the simulator always builds from parameters.
+The reference XML files beside this module are the default parameters' models (``python -m
+sim.reference_models`` rewrites them, a test checks they are current); the simulator always builds from
+parameters.
 """
 
 from __future__ import annotations
 
-import argparse
 import math
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import mujoco
 
+from models.errors import ParameterError
 from models.gim8108_testbed.derived import FIXTURES, derive, physics_timestep
-from sim.params import ParameterError, TestbedParams
+
+if TYPE_CHECKING:
+    from sim.params import TestbedParams
 
 HERE = Path(__file__).resolve().parent
 MOTOR_HOUSING_HALF_HEIGHT_M = 0.02  # visual only: a 40 mm tall GIM8108 housing
@@ -35,7 +39,7 @@ def _longest_step_s(p: TestbedParams, fixtures) -> float:
 def _step_lengthening_fields(p: TestbedParams, fixtures) -> list[str]:
     """``group.field = value (default d)`` of every field that differs from the defaults and, set back to its
     default alone, gives a shorter physics step in ``fixtures``."""
-    default, h = TestbedParams(), _longest_step_s(p, fixtures)
+    default, h = type(p)(), _longest_step_s(p, fixtures)  # the defaults of p's own parameter class
     found = []
     for name, value, unit, _ in p.rows():
         group, field = name.split(".")
@@ -214,16 +218,5 @@ def build_model(p: TestbedParams, fixture: str) -> mujoco.MjModel:
 
 
 def reference_xml_path(fixture: str) -> Path:
+    """Path of the reference XML file of ``fixture``: the default parameters' model."""
     return HERE / f"testbed_{fixture}.xml"
-
-
-def main(argv: list[str] | None = None) -> None:
-    argparse.ArgumentParser(description=__doc__).parse_args(argv)
-    for fixture in FIXTURES:
-        path = reference_xml_path(fixture)
-        path.write_text(build_xml(TestbedParams(), fixture))
-        print(f"wrote {path}")
-
-
-if __name__ == "__main__":
-    main()

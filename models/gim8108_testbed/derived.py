@@ -9,11 +9,13 @@ from __future__ import annotations
 
 import math
 from dataclasses import asdict, dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 import scipy.linalg
 
-from sim.params import TestbedParams
+if TYPE_CHECKING:
+    from sim.params import TestbedParams
 
 
 @dataclass(frozen=True)

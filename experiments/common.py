@@ -16,7 +16,7 @@ import numpy as np
 from models.gim8108_testbed.build import build_xml, check_time_constants
 from models.gim8108_testbed.derived import FIXTURES
 from sensor.calibration import InfeasibleCalibrationError
-from sensor.photoreflector import check_params as check_sensor_params
+from sensor.protocol import check_params as check_sensor_params
 from sim.params import ParameterError, TestbedParams, load_params
 
 
@@ -38,7 +38,7 @@ def load_params_arg(parser: argparse.ArgumentParser, args: argparse.Namespace, c
     A bad file, a parameter set the testbed's model cannot be built from (a constraint between fields, such as
     solver time constants the physics step of a fixture cannot resolve: the message names the fields the file
     changed that lengthen the step, and what to set in the file), one that the sensor cannot be read or
-    calibrated with (``sensor.photoreflector.check_params``, unless ``uses_sensor`` is False) or one that a
+    calibrated with (``sensor.protocol.check_params``, unless ``uses_sensor`` is False) or one that a
     callable of ``checks`` (``check(params)``, raising ParameterError) refuses for this experiment becomes a
     command-line error that names the file and the field; so does an output that cannot be written or that
     names the --params file (``check_output_paths``).

@@ -15,7 +15,8 @@ import numpy as np
 
 from models.gim8108_testbed.derived import derive
 from sensor.calibration import Calibration
-from sensor.photoreflector import PhotoReflectorArray, check_params, reference_torque
+from sensor.photoreflector import PhotoReflectorArray, reference_torque
+from sensor.protocol import check_params
 from sim.params import TestbedParams
 from sim.thermal import ThermalState
 
@@ -84,7 +85,7 @@ def chamber_run(params: TestbedParams, calibration: Calibration, seed: int = 0,
     ----------
     params : TestbedParams
         Parameter set of the rig (the chamber's thermal changes are applied here); checked by
-        :func:`sensor.photoreflector.check_params` first.
+        :func:`sensor.protocol.check_params` first.
     calibration : Calibration
         Voltages [V] to torque [N·m], e.g. :func:`sensor.readout.factory_calibration`.
     seed : int
@@ -116,7 +117,7 @@ def drift_run(params: TestbedParams, calibration: Calibration, tau_nm: float, se
     Parameters
     ----------
     params : TestbedParams
-        Parameter set; checked by :func:`sensor.photoreflector.check_params` first.
+        Parameter set; checked by :func:`sensor.protocol.check_params` first.
     calibration : Calibration
         Voltages [V] to torque [N·m], e.g. :func:`sensor.readout.factory_calibration`.
     tau_nm : float

@@ -21,9 +21,9 @@ import numpy as np
 from sensor import metrics
 from sensor.calibration import (MIN_QUIET_SAMPLES, Calibration, GammaSelection, fit_least_squares,
                                 quiet_segment_mask, select_gamma)
-from sensor.photoreflector import PhotoReflectorArray, check_params
-from sensor.protocol import (CALIBRATION_CYCLES, PRELOAD_LABEL, RigRecord, calibration_schedule, crosstalk_schedule, record,
-                             resolution_schedule)
+from sensor.photoreflector import PhotoReflectorArray
+from sensor.protocol import (CALIBRATION_CYCLES, PRELOAD_LABEL, RigRecord, calibration_schedule, check_params,
+                             crosstalk_schedule, record, resolution_schedule)
 from sim.params import TestbedParams
 
 # Noise streams of one evaluation, derived from its seed (numpy SeedSequence spawn keys).
@@ -106,7 +106,7 @@ def leading_quiet_segment(tau_ref_nm: np.ndarray) -> np.ndarray:
     ------
     ValueError
         If that run is shorter than ``MIN_QUIET_SAMPLES`` (a noisy reference breaks it up; the parameter-set
-        form of this is caught earlier by :func:`sensor.photoreflector.check_params`).
+        form of this is caught earlier by :func:`sensor.protocol.check_params`).
     """
     mask = quiet_segment_mask(tau_ref_nm)
     start = int(np.argmax(mask))
@@ -177,7 +177,7 @@ def resolution_gain(params: TestbedParams | None = None, seed: int = 0) -> tuple
     Parameters
     ----------
     params : TestbedParams, optional
-        Parameter set (defaults if None); checked by :func:`sensor.photoreflector.check_params` first.
+        Parameter set (defaults if None); checked by :func:`sensor.protocol.check_params` first.
     seed : int
         Seed of every noise draw of the run.
 
@@ -191,7 +191,7 @@ def resolution_gain(params: TestbedParams | None = None, seed: int = 0) -> tuple
     Raises
     ------
     sim.params.ParameterError
-        If the sensor parameters cannot work together (:func:`sensor.photoreflector.check_params`).
+        If the sensor parameters cannot work together (:func:`sensor.protocol.check_params`).
     sensor.calibration.InfeasibleCalibrationError
         If no calibration meets the paper's error bound on the calibration record.
     """
@@ -234,7 +234,7 @@ def evaluate_sensor(params: TestbedParams | None = None, seed: int = 0) -> Senso
     Parameters
     ----------
     params : TestbedParams, optional
-        Parameter set (defaults if None); checked by :func:`sensor.photoreflector.check_params` first.
+        Parameter set (defaults if None); checked by :func:`sensor.protocol.check_params` first.
     seed : int
         Seed of every noise draw of the run (channels and MINI85), split into independent streams.
 
@@ -247,7 +247,7 @@ def evaluate_sensor(params: TestbedParams | None = None, seed: int = 0) -> Senso
     Raises
     ------
     sim.params.ParameterError
-        If the sensor parameters cannot work together (:func:`sensor.photoreflector.check_params`).
+        If the sensor parameters cannot work together (:func:`sensor.protocol.check_params`).
     sensor.calibration.InfeasibleCalibrationError
         If no calibration meets the paper's error bound on the calibration record.
     """

@@ -17,8 +17,8 @@ import numpy as np
 
 from sensor.calibration import Calibration
 from sensor.evaluation import calibrate
-from sensor.photoreflector import CHANNELS, PhotoReflectorArray, check_params
-from sensor.protocol import calibration_schedule, crosstalk_schedule, record
+from sensor.photoreflector import CHANNELS, PhotoReflectorArray
+from sensor.protocol import calibration_schedule, check_params, crosstalk_schedule, record
 from sim.params import TestbedParams
 
 # The factory calibration's run seed: the noise of the calibration record, not of later runs.
@@ -47,7 +47,7 @@ def factory_calibration(params: TestbedParams | None = None, method: Literal["ls
     Raises
     ------
     sim.params.ParameterError
-        If the sensor parameters cannot work together (:func:`sensor.photoreflector.check_params`).
+        If the sensor parameters cannot work together (:func:`sensor.protocol.check_params`).
     sensor.calibration.InfeasibleCalibrationError
         If the QP finds no calibration within the paper's error bound.
     """

@@ -1,5 +1,5 @@
 """Sensor parameter sets whose fields are each in range but cannot work together are refused before a run,
-by ``sensor.photoreflector.check_params``, with an error naming the field; a noise-free sensor runs."""
+by ``sensor.protocol.check_params``, with an error naming the field; a noise-free sensor runs."""
 
 import math
 
@@ -9,7 +9,7 @@ from sensor import evaluation
 from sensor.calibration import E_MAX_NM, InfeasibleCalibrationError
 from sensor.chamber import chamber_run, drift_run
 from sensor.evaluation import evaluate_sensor, resolution_gain
-from sensor.photoreflector import _protocol_voltage_range, check_params
+from sensor.protocol import _protocol_voltage_range, check_params
 from sensor.readout import factory_calibration
 from sim.params import ParameterError, TestbedParams
 

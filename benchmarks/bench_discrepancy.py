@@ -27,10 +27,10 @@ from collections import defaultdict
 from pathlib import Path
 
 from experiments.common import write_json
+from experiments.synthetic_logs import hidden_effect_log
 from sim.discrepancy.analysis import analyse
 from sim.discrepancy.rig import rig_to_toml
 from sim.discrepancy.signals import AnalysisConfig
-from sim.discrepancy.synth import hidden_effect_log
 from sim.logio import write_log
 
 TARGET_60S_WALL_S = 20.0

@@ -5,7 +5,7 @@ discrepancy analysis without a rig of one's own.
                                            [--out DIR] [--no-plot]
 
 The log comes from the MuJoCo testbed (or the rigid slide) with ``--effect`` hidden at a value drawn from its
-realistic range with ``--seed`` (``sim.discrepancy.synth``); the rig file is the baseline, without the effect,
+realistic range with ``--seed`` (``experiments.synthetic_logs``); the rig file is the baseline, without the effect,
 which is what the analysis is told. The command prints the hidden value and the command that analyses the pair;
 ``python -m experiments.discrepancy`` should name the effect and recover the value. Existing files are not
 replaced. A --duration shorter than the analysis accepts (:func:`shortest_analysable_duration_s`) is refused
@@ -20,10 +20,7 @@ import sys
 from pathlib import Path
 
 from experiments.common import MAX_DURATION_S, add_no_figures_arg, check_output_paths, cli_parser, run_seconds, seed_arg
-from sim.discrepancy.effects import EFFECTS
-from sim.discrepancy.rig import save_rig
-from sim.discrepancy.signals import AnalysisConfig, minimum_samples
-from sim.discrepancy.synth import (
+from experiments.synthetic_logs import (
     EXPERIMENTS,
     FINE_MOTOR_ENCODER_COUNTS,
     MOTOR_ENCODER_COUNTS,
@@ -31,12 +28,15 @@ from sim.discrepancy.synth import (
     baseline_rig,
     hidden_effect_log,
 )
+from sim.discrepancy.effects import EFFECTS
+from sim.discrepancy.rig import save_rig
+from sim.discrepancy.signals import AnalysisConfig, minimum_samples
 from sim.logio import write_log
 from sim.runlog import HOLD_END
 
 DEFAULT_EFFECT = "coulomb_friction"
 DEFAULT_DURATION_S = 10.0  # [s] the length the hidden-effect sweep recovers every effect from
-LOG_SAMPLE_PERIOD_S = 1e-3  # [s] the synthetic logs hold one sample per 1 ms control tick (sim.discrepancy.synth)
+LOG_SAMPLE_PERIOD_S = 1e-3  # [s] the synthetic logs hold one sample per 1 ms control tick (synthetic_logs)
 
 
 def shortest_analysable_duration_s() -> float:

@@ -1,6 +1,6 @@
 """Discrepancy analysis, fast checks: surrogate against MuJoCo, hidden effects found, no false positives, CLI.
 
-Hidden-effect logs come from the MuJoCo simulator (sim.discrepancy.synth) with realistic noise; the analysis
+Hidden-effect logs come from the MuJoCo simulator (experiments.synthetic_logs) with realistic noise; the analysis
 gets only the log and the baseline rig. The full sweep (every effect, several seeds) is in
 tests/test_discrepancy_sweep.py, marked slow.
 """
@@ -13,16 +13,7 @@ import numpy as np
 import pytest
 
 from experiments import discrepancy as cli
-from sim.discrepancy.analysis import analyse
-from sim.discrepancy.effects.load_dependent_friction import DOWN as LOAD_COEFFICIENT_DOWN
-from sim.discrepancy.effects.load_dependent_friction import UP as LOAD_COEFFICIENT_UP
-from sim.discrepancy.model import Surrogate, baseline_theta, bristle_state
-from sim.discrepancy.rig import load_rig, rig_from_dict, rig_to_toml
-from sim.discrepancy.selection import ChannelScore, event_test, moved_enough, passes_events
-from sim.discrepancy.signals import AnalysisConfig, prepare
-from sim.discrepancy.simulate import run_testbed
-from sim.discrepancy.simulate import testbed_plant as build_testbed_plant
-from sim.discrepancy.synth import (
+from experiments.synthetic_logs import (
     BASELINE_RANGES,
     FINE_MOTOR_ENCODER_COUNTS,
     GRID_BEST_OVERRIDES,
@@ -32,6 +23,15 @@ from sim.discrepancy.synth import (
     hidden_effect_log,
     random_baseline_overrides,
 )
+from sim.discrepancy.analysis import analyse
+from sim.discrepancy.effects.load_dependent_friction import DOWN as LOAD_COEFFICIENT_DOWN
+from sim.discrepancy.effects.load_dependent_friction import UP as LOAD_COEFFICIENT_UP
+from sim.discrepancy.model import Surrogate, baseline_theta, bristle_state
+from sim.discrepancy.rig import load_rig, rig_from_dict, rig_to_toml
+from sim.discrepancy.selection import ChannelScore, event_test, moved_enough, passes_events
+from sim.discrepancy.signals import AnalysisConfig, prepare
+from sim.discrepancy.simulate import run_testbed
+from sim.discrepancy.simulate import testbed_plant as build_testbed_plant
 from sim.logio import write_log
 
 DURATION_S = 8.0  # short logs: 4.8 s fit, 3.2 s held out
@@ -69,7 +69,7 @@ def test_surrogate_bristle_state_follows_mujoco():
     RMS), half of what the 1 kHz implicit Euler update it replaced lagged by."""
     from scipy.signal import butter, sosfiltfilt
 
-    from sim.discrepancy import synth
+    from experiments import synthetic_logs
 
     rig = rig_from_dict({"model": "testbed", "fixture": "free"})
     plant = build_testbed_plant(rig)
@@ -79,9 +79,9 @@ def test_surrogate_bristle_state_follows_mujoco():
     q_motor, z_mujoco = np.empty(n), np.empty(n)
     q, qd = 0.0, 0.0
     for k in range(n):
-        ref = sum(a * math.sin(2 * math.pi * f * k * 1e-3) for a, f in synth.FREE_SWING_RAD)
-        u = synth.FREE_KP_NM_PER_RAD * (ref - q) - synth.FREE_KD_NMS_PER_RAD * qd
-        plant.step(min(max(u, -synth.FREE_COMMAND_LIMIT_NM), synth.FREE_COMMAND_LIMIT_NM))
+        ref = sum(a * math.sin(2 * math.pi * f * k * 1e-3) for a, f in synthetic_logs.FREE_SWING_RAD)
+        u = synthetic_logs.FREE_KP_NM_PER_RAD * (ref - q) - synthetic_logs.FREE_KD_NMS_PER_RAD * qd
+        plant.step(min(max(u, -synthetic_logs.FREE_COMMAND_LIMIT_NM), synthetic_logs.FREE_COMMAND_LIMIT_NM))
         q_motor[k] = plant.motor_angle_rad
         z_mujoco[k] = plant.data.act[plant._act_bristle] / n_gear  # motor-side deflection -> output-referred
         q, qd = plant.output_angle_rad, plant.output_velocity_rad_s
@@ -216,8 +216,8 @@ def test_no_hidden_effect_gives_no_finding(experiment):
     assert result.findings == [] and result.verdict == "no significant discrepancy"
 
 
-# Baselines other than the defaults of sim.params: drawn from synth.BASELINE_RANGES (explicit seeds; the log's noise
-# seed is 1000 + the baseline's), and the parameter set identify_defaults prefers. The slow sweep draws 40.
+# Baselines other than the defaults of sim.params: drawn from synthetic_logs.BASELINE_RANGES (explicit seeds; the
+# log's noise seed is 1000 + the baseline's), and the parameter set identify_defaults prefers. The slow sweep draws 40.
 FAST_RANDOM_BASELINES = (0, 1, 2, 3, 4, 5)
 
 
@@ -240,7 +240,8 @@ def test_no_finding_on_the_grid_best_baseline(fixture):
 
 
 def test_random_baselines_span_the_stated_ranges():
-    """Drawn baselines stay in synth.BASELINE_RANGES and form valid parameter sets (Coulomb below breakaway)."""
+    """Drawn baselines stay in synthetic_logs.BASELINE_RANGES and form valid parameter sets (Coulomb below
+    breakaway)."""
     for seed in range(20):
         over = random_baseline_overrides(seed)
         rig = baseline_rig("free", over)

@@ -1,7 +1,7 @@
 """The discrepancy analysis's input: implausible logs refused by column and row, the time convention, several
 logs fitted together and validation logs, decimation of long logs.
 
-Logs come from the project's MuJoCo rigs (sim.discrepancy.synth) and from the independent simulator
+Logs come from the project's MuJoCo rigs (experiments.synthetic_logs) and from the independent simulator
 (tests/independent/rigsim.py).
 """
 
@@ -12,11 +12,11 @@ import numpy as np
 import pytest
 
 from experiments import discrepancy as cli
+from experiments.synthetic_logs import hidden_effect_log, synth_log
 from sim.discrepancy.analysis import analyse
 from sim.discrepancy.checks import InputError, check_log, to_hold_end, wrapped_steps
 from sim.discrepancy.rig import RigError, rig_from_dict
 from sim.discrepancy.signals import MAX_ANALYSIS_SAMPLES, AnalysisConfig, decimation_factor
-from sim.discrepancy.synth import hidden_effect_log, synth_log
 from sim.logio import write_log
 from sim.runlog import COMMAND, HOLD_END
 from tests.independent import rigsim

@@ -7,11 +7,11 @@ own command from its own initial state, retraces the same motion.
 import numpy as np
 import pytest
 
+from experiments.synthetic_logs import FINE_MOTOR_ENCODER_COUNTS, LOADCELL_NOISE_N, hidden_effect_log
 from sim.discrepancy.analysis import analyse
 from sim.discrepancy.null import model_log, white_noise_std
 from sim.discrepancy.selection import moved_enough
 from sim.discrepancy.signals import AnalysisConfig, prepare
-from sim.discrepancy.synth import FINE_MOTOR_ENCODER_COUNTS, LOADCELL_NOISE_N, hidden_effect_log
 
 DURATION_S = 10.0  # the slow sweep's length: the estimator bias below is measured on it
 

@@ -1,7 +1,7 @@
 """Hidden-effect sweep (slow): every effect of the library across seeds, false positives, pairs of effects.
 
 Each effect is hidden in the experiment that makes it identifiable (docs/discrepancy.md), at a value drawn
-from its realistic range (sim.discrepancy.synth.draw_effect) with the seed; the analysis gets only the log
+from its realistic range (experiments.synthetic_logs.draw_effect) with the seed; the analysis gets only the log
 and the baseline rig. Tolerances are stated per effect; the looser ones say why.
 """
 
@@ -9,8 +9,7 @@ import dataclasses
 
 import pytest
 
-from sim.discrepancy.analysis import analyse
-from sim.discrepancy.synth import (
+from experiments.synthetic_logs import (
     EXPERIMENTS,
     FINE_MOTOR_ENCODER_COUNTS,
     GRID_BEST_OVERRIDES,
@@ -19,6 +18,7 @@ from sim.discrepancy.synth import (
     hidden_effect_log,
     random_baseline_overrides,
 )
+from sim.discrepancy.analysis import analyse
 
 SEEDS = (21, 22, 23)
 DURATION_S = 10.0
@@ -239,9 +239,9 @@ def test_two_hidden_effects_are_both_found(experiment, effects, seed):
 
 
 # ------------------------------------------------------------------ baselines other than the defaults of sim.params
-# Random baselines drawn from synth.BASELINE_RANGES (breakaway, Coulomb/breakaway, Stribeck velocity, viscous,
-# load-dependent friction, torque saturation, backlash 0.5-3.5 mrad) with explicit seeds; the log's noise seed is
-# 1000 + the baseline's. Zero findings are required on every one.
+# Random baselines drawn from synthetic_logs.BASELINE_RANGES (breakaway, Coulomb/breakaway, Stribeck velocity,
+# viscous, load-dependent friction, torque saturation, backlash 0.5-3.5 mrad) with explicit seeds; the log's noise
+# seed is 1000 + the baseline's. Zero findings are required on every one.
 RANDOM_BASELINES = tuple(range(40))
 CLOSED_LOOP_RANDOM_BASELINES = tuple(range(10))
 

@@ -267,7 +267,7 @@ def measured_locked(tmp_path_factory):
 
 def _measured(experiment, directory):
     from sim.discrepancy.rig import rig_to_toml
-    from sim.discrepancy.synth import hidden_effect_log
+    from experiments.synthetic_logs import hidden_effect_log
     from sim.logio import write_log
 
     log, rig, _ = hidden_effect_log(experiment, [], seed=1, duration_s=3.0)

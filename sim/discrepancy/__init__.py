@@ -16,7 +16,6 @@ Modules, one job each:
 ``null``         the model's own log under the log's command (the estimator's bias)
 ``simulate``     MuJoCo runs of a rig with its effects (test logs, replay, the model's own log)
 ``replay``       windowed replay of the held-out part through MuJoCo
-``synth``        excitation and hidden-effect logs for tests and the benchmark
 ``analysis``     the whole analysis, ``analyse(log, rig) -> DiscrepancyResult``
 ``report``       text and figures of a result
 """

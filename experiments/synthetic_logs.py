@@ -1,8 +1,8 @@
 """Synthetic "measured" logs: the simulator with hidden effects, realistic excitation and sensor noise.
 
-Used by the hidden-effect tests and the benchmark: a log is made from a *truth* rig (the baseline with one or
-more effects switched on or changed at a random value in a realistic range), and the analysis receives only
-the log and the *baseline* rig.
+Used by the hidden-effect tests, the benchmark and ``experiments.discrepancy_demo``: a log is made from a
+*truth* rig (the baseline with one or more effects switched on or changed at a random value in a realistic
+range), and the analysis receives only the log and the *baseline* rig.
 
 Experiments (which make which effect identifiable, see ``docs/discrepancy.md``):
 

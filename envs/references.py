@@ -1,8 +1,8 @@
 """Torque reference profiles of the tracking environment: the paper's step, sine and square tasks and random
 ones, one value per 1 ms control tick.
 
-The paper's shapes come from the experiments that reproduce it: step sizes and the zero lead-in from
-:mod:`experiments.step`, the sine and square waveforms from :mod:`experiments.sinusoid`.
+The paper's shapes are its protocols, shared with the experiments that reproduce it (:mod:`sim.protocols`):
+the step sizes and their zero lead-in, the sine and square waveforms.
 """
 
 from __future__ import annotations
@@ -12,8 +12,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from experiments.sinusoid import WAVEFORMS, Waveform
-from experiments.step import PRE_STEP_S, STEPS_NM
+from sim.protocols import PRE_STEP_S, STEPS_NM, WAVEFORMS, Waveform
 
 TASKS = ("step", "sine", "square", "random")
 TASK_CHOICES = TASKS + ("any",)  # 'any': one of TASKS drawn per episode

@@ -22,10 +22,10 @@ from sim.figures import save_figure
 from sim.motor_torque import CurrentToTorqueMap
 from sim.params import TestbedParams
 from sim.plant import Plant
+from sim.protocols import STEPS_NM
 from sim.run import run_open_loop
 from sim.runlog import RunLog
 
-PAPER_STEPS_NM = (0.05, 0.1, 0.2)  # paper Sec. V-A, Table VI
 PAPER_REACHED_FRACTION = {0.05: 0.30, 0.1: 0.40, 0.2: 0.65}  # paper Sec. V-A, current feedback, mean values
 SETTLED_FRACTION = 0.5  # the mean is taken over the second half of each step
 
@@ -53,7 +53,7 @@ class OpenLoopStepResult:
                           "current_estimate_mean_nm": "N·m", "reached_fraction": "1"}}
 
 
-def run_open_loop_step(params: TestbedParams | None = None, steps_nm: tuple[float, ...] = PAPER_STEPS_NM,
+def run_open_loop_step(params: TestbedParams | None = None, steps_nm: tuple[float, ...] = STEPS_NM,
                        duration_s: float = 2.0) -> OpenLoopStepResult:
     """Each step from rest in the locked fixture, the backlash taken up in the step's direction (as after a
     previous push): a constant torque command held for ``duration_s``."""
@@ -111,7 +111,7 @@ def plot_result(result: OpenLoopStepResult, directory: Path) -> Path:
 
 def main(argv: list[str] | None = None) -> None:
     parser = cli_parser(__doc__, __spec__.name)
-    parser.add_argument("--steps", type=float, nargs="+", default=list(PAPER_STEPS_NM), metavar="N·m",
+    parser.add_argument("--steps", type=float, nargs="+", default=list(STEPS_NM), metavar="N·m",
                         help="torque commands of the steps [N·m] (default 0.05 0.1 0.2)")
     parser.add_argument("--duration", type=run_seconds, default=2.0, metavar="S",
                         help="seconds per step (default 2)")

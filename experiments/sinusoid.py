@@ -9,9 +9,9 @@ test leaves: the motor had pushed the lever against the load cell at ``PRECONDIT
 command is ramped back to zero, and the gear stops where its friction holds it, with some torque still locked
 in the flexure and the load cell (``PRECONDITION_HOLD_S`` pushing, ``PRECONDITION_RAMP_S`` ramping down,
 ``PRECONDITION_RELEASE_S`` released; open loop, not evaluated). Then the reference under closed-loop
-control: 0.05 N·m sine at 0.2 Hz, 0.1 N·m square wave at 1 Hz, 10 N·m sine at 0.2 Hz, each starting at zero
-phase, for ``WARMUP_PERIODS`` period (not evaluated: the figures describe the periodic test, not its start
-from that preload) and then ``TEST_DURATION_S``, evaluated. RMS and peak errors of the load-cell reading
+control: 0.05 N·m sine at 0.2 Hz, 0.1 N·m square wave at 1 Hz, 10 N·m sine at 0.2 Hz (``WAVEFORMS`` of
+:mod:`sim.protocols`), each starting at zero phase, for ``WARMUP_PERIODS`` period (not evaluated: the figures
+describe the periodic test, not its start from that preload) and then ``TEST_DURATION_S``, evaluated. RMS and peak errors of the load-cell reading
 against the reference over the evaluated window, with the peak error defined in :mod:`controllers.tracking`
 (|max y - max r|, the crest reading of the paper's "peak error"). The one-sided actuation of the paper's
 low-torque current-feedback tests is measured as the share of the load-cell torque's impulse that is
@@ -39,6 +39,7 @@ from sim.figures import save_figure
 from sim.motor_torque import CurrentToTorqueMap
 from sim.params import TestbedParams
 from sim.plant import Plant
+from sim.protocols import WAVEFORMS, Waveform
 from sim.run import run_open_loop
 from sim.runlog import RunLog
 
@@ -49,24 +50,6 @@ PRECONDITION_HOLD_S = 0.5  # [s]
 PRECONDITION_RAMP_S = 0.5  # [s] the command ramped back to zero (an operator ending the test, assumed)
 PRECONDITION_RELEASE_S = 0.5  # [s] command zero; the gear settles where its friction holds it
 
-
-@dataclass(frozen=True)
-class Waveform:
-    """A reference: 'sine' or 'square' of amplitude [N·m] and frequency [Hz]."""
-
-    name: str
-    shape: str
-    amplitude_nm: float
-    frequency_hz: float
-
-    def reference(self, t_s: np.ndarray) -> np.ndarray:
-        s = np.sin(2.0 * np.pi * self.frequency_hz * t_s)
-        return self.amplitude_nm * (s if self.shape == "sine" else np.where(s >= 0.0, 1.0, -1.0))
-
-
-WAVEFORMS = (Waveform("0.05 N·m sine 0.2 Hz", "sine", 0.05, 0.2),
-             Waveform("0.1 N·m square 1 Hz", "square", 0.1, 1.0),
-             Waveform("10 N·m sine 0.2 Hz", "sine", 10.0, 0.2))
 # Paper Table VII: (RMS, peak) error [N·m] against the load-cell torque.
 PAPER_ERRORS_NM = {("current", "0.05 N·m sine 0.2 Hz"): (0.0685, 0.0505),
                    ("current", "0.1 N·m square 1 Hz"): (0.0924, 0.1426),

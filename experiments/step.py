@@ -7,7 +7,8 @@ Table VI, Fig. 11).
 Protocol (the paper gives the step sizes, the gains and the 1 kHz cycle; the rest is stated here):
 
 * Steps: the rig at rest with the backlash taken up in the step's direction (as after a previous push), the
-  reference zero for ``PRE_STEP_S`` then stepped to 0.05, 0.1 or 0.2 N·m and held for ``STEP_HOLD_S``.
+  reference zero for ``PRE_STEP_S`` then stepped to 0.05, 0.1 or 0.2 N·m (``STEPS_NM``; both from
+  :mod:`sim.protocols`, which the environment shares) and held for ``STEP_HOLD_S``.
   The errors are taken over the hold once the loop has settled (from ``SETTLE_S`` after the step): the
   paper's sensor-feedback RMS errors are the same for the three step sizes (0.0026, 0.0026, 0.0025 N·m),
   which a window containing the transient would not give, and its current-feedback errors match
@@ -43,6 +44,7 @@ from sim.figures import save_figure
 from sim.motor_torque import CurrentToTorqueMap
 from sim.params import TestbedParams
 from sim.plant import Plant
+from sim.protocols import PRE_STEP_S, STEPS_NM
 from sim.runlog import RunLog
 
 # Paper Table VI: RMS error [N·m] against the load-cell torque.
@@ -53,10 +55,8 @@ PAPER_DISTURBANCE_RMS_NM = {"current": 0.1893, "sensor": 0.0058}
 PAPER_REACHED_FRACTION = {0.05: 0.30, 0.1: 0.40, 0.2: 0.65}
 # Paper Sec. V-A: disturbance at which regulation was lost (current) / still held (sensor) [N·m].
 PAPER_DISTURBANCE_LOST_NM = {"current": 0.3, "sensor": 2.0}
-STEPS_NM = (0.05, 0.1, 0.2)
 REGULATED_NM = 0.5
 
-PRE_STEP_S = 0.5  # [s] reference zero before the step
 STEP_HOLD_S = 5.0  # [s] step held
 SETTLE_S = 1.0  # [s] ~10 time constants of the PI's integral action, (1 + Kp)/Ki = 93 ms
 PRE_DISTURBANCE_S = 2.0  # [s] regulation before the hand pushes

@@ -2,8 +2,7 @@
 
     python -m experiments.paper [--seed N] [--duration S] [--json PATH] [--plot DIR] [--params TOML]
 
-Runs the calibration and thermal experiments (``experiments.calibration``, ``experiments.thermal``, if
-present), the step and disturbance tests, the sine and square tests (both feedbacks) and the admittance
+Runs the calibration and thermal experiments (``experiments.calibration``, ``experiments.thermal``), the step and disturbance tests, the sine and square tests (both feedbacks) and the admittance
 pushes, then prints the table (``ratio`` = sim / paper), the paper's qualitative behaviours with whether the
 simulation shows them, and with ``--plot DIR`` writes ``DIR/paper_report.md`` with every figure. ``--json``
 writes ``{"rows": [{"table", "quantity", "unit", "paper", "sim", "ratio"}], "behaviours": [...]}``.
@@ -12,18 +11,19 @@ About 1-2 min with the full-length tests.
 
 from __future__ import annotations
 
-import importlib
 import sys
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 from experiments.admittance import make_controller, plot_admittance, run_admittance
+from experiments.calibration import run_calibration
 from experiments.common import (SHORTEST_FULL_TEST_S, TARGET_RATIO, add_experiment_args, cli_parser, format_rows,
                                 load_params_arg, outside_band, paper_row, record_rerun, run_errors, short_run_banner,
                                 write_outputs)
 from experiments.sinusoid import plot_sinusoid, run_sinusoid
 from experiments.step import plot_step, run_step
+from experiments.thermal import run_thermal
 from sim.characterize import measure_breakaway
 from sim.params import TestbedParams
 
@@ -33,8 +33,8 @@ ONE_SIDED_SHARE = 0.8  # [-] >= 80 % of the output's impulse on one side of zero
 # current-feedback step fraction (30 %, Sec. V-A): a lower output is a gear that never broke free, and the sign
 # share of a stuck output is its noise and offset, not one- or two-sided actuation.
 ACTUATION_LEVEL = 0.25
-# The lead's experiments: module name -> runner name. Imported if present.
-SENSOR_EXPERIMENTS = {"experiments.calibration": "run_calibration", "experiments.thermal": "run_thermal"}
+# The sensor's experiments, run first: name shown in the progress -> runner.
+SENSOR_EXPERIMENTS = {"experiments.calibration": run_calibration, "experiments.thermal": run_thermal}
 
 
 @dataclass(frozen=True)
@@ -51,12 +51,11 @@ class Behaviour:
 
 @dataclass(frozen=True)
 class PaperResult:
-    """All rows, behaviours, figures written, and the experiments that were not available."""
+    """All rows, behaviours and figures written."""
 
     rows: list[dict[str, Any]]
     behaviours: list[Behaviour]
     figures: list[Path] = field(default_factory=list)
-    missing: list[str] = field(default_factory=list)
     logs: dict[str, Any] = field(default_factory=dict, repr=False)  # run name -> RunLog (rerun recording)
     seed: int = 0
     duration_s: float | None = None  # [s] the shortened run length, None for the full-length tests
@@ -68,25 +67,19 @@ class PaperResult:
 
     def to_dict(self) -> dict[str, Any]:
         return {"rows": self.rows, "behaviours": [b.to_dict() for b in self.behaviours],
-                "figures": [str(p) for p in self.figures], "missing": self.missing}
+                "figures": [str(p) for p in self.figures]}
 
 
 def _sensor_experiments(params: TestbedParams, seed: int, plot_dir: Path | None,
-                        progress: bool) -> tuple[list[dict], list[Path], list[str]]:
-    rows, figures, missing = [], [], []
-    for module_name, runner in SENSOR_EXPERIMENTS.items():
-        try:
-            module = importlib.import_module(module_name)
-            run = getattr(module, runner)
-        except (ImportError, AttributeError) as exc:
-            missing.append(f"{module_name}.{runner}: {exc}")
-            continue
+                        progress: bool) -> tuple[list[dict], list[Path]]:
+    rows, figures = [], []
+    for name, run in SENSOR_EXPERIMENTS.items():
         if progress:
-            print(f"{module_name} ...", file=sys.stderr, flush=True)
+            print(f"{name} ...", file=sys.stderr, flush=True)
         result = run(params, seed, plot_dir=plot_dir)
         rows += result.rows
         figures += [Path(p) for p in result.figures]
-    return rows, figures, missing
+    return rows, figures
 
 
 def actuation(positive_share: float, output_level: float) -> str:
@@ -145,7 +138,7 @@ def run_paper(params: TestbedParams | None = None, seed: int = 0, duration_s: fl
               plot_dir: Path | None = None, progress: bool = False) -> PaperResult:
     """Run every experiment; rows of every paper figure beside the simulated one, and the behaviours."""
     params = params or TestbedParams()
-    rows, figures, missing = _sensor_experiments(params, seed, plot_dir, progress)
+    rows, figures = _sensor_experiments(params, seed, plot_dir, progress)
     step = run_step(params, seed=seed, duration_s=duration_s, progress=progress)
     sinusoid = run_sinusoid(params, seed=seed, duration_s=duration_s, progress=progress)
     admittance = run_admittance(params, seed, duration_s, progress)
@@ -156,8 +149,7 @@ def run_paper(params: TestbedParams | None = None, seed: int = 0, duration_s: fl
         figures += [plot_step(step, plot_dir), plot_sinusoid(sinusoid, plot_dir),
                     plot_admittance(admittance, plot_dir)]
     logs = {**step.logs(), **sinusoid.logs(), **admittance.logs()}
-    return PaperResult(rows, _behaviours(step, sinusoid, admittance, breakaway), figures, missing, logs, seed,
-                       duration_s)
+    return PaperResult(rows, _behaviours(step, sinusoid, admittance, breakaway), figures, logs, seed, duration_s)
 
 
 def _cell(text: str) -> str:
@@ -188,8 +180,6 @@ def markdown_report(result: PaperResult, directory: Path) -> str:
     lines += ["", "## Behaviours", "", "| paper | simulation | reproduced |", "|---|---|---|"]
     lines += [f"| {_cell(b.claim)} | {_cell(b.simulated)} | {'yes' if b.reproduced else 'no'} |"
               for b in result.behaviours]
-    if result.missing:
-        lines += ["", "## Not run", ""] + [f"- {m}" for m in result.missing]
     lines += ["", "## Figures", ""]
     for path in result.figures:
         rel = Path(path).resolve().relative_to(directory.resolve()) if Path(path).resolve().is_relative_to(
@@ -212,8 +202,6 @@ def main(argv: list[str] | None = None) -> None:
     print("\nbehaviours:")
     for b in result.behaviours:
         print(f"  [{'x' if b.reproduced else ' '}] {b.claim}: {b.simulated}")
-    for m in result.missing:
-        print(f"not run (absent): {m}")
     write_outputs(args, result.to_dict())
     if args.plot:
         report = args.plot / "paper_report.md"

@@ -27,7 +27,8 @@ import gymnasium as gym
 import mujoco
 import numpy as np
 
-import sim.plant  # importing sim registers the environment
+import sim.plant
+import torquebed  # noqa: F401  (registers the environment)
 from benchmarks.bench_plant import PEER_ENV, best_rate, env_step_rate, peer_rate, require_peer
 from controllers.feedback import make_feedback
 from controllers.loop import run_torque_loop

@@ -1,10 +1,8 @@
 """Gymnasium environments on the simulated testbed.
 
-``register_envs()`` registers :data:`ENV_ID` with Gymnasium; ``import sim`` calls it, so after that
+``register_envs()`` registers :data:`ENV_ID` with Gymnasium; ``import torquebed`` calls it, so after that
 ``gymnasium.make("torquebed/TorqueTracking-v0")`` works. Without importing anything first, use Gymnasium's
-module prefix: ``gymnasium.make("sim:torquebed/TorqueTracking-v0")``. (pyproject.toml also declares the
-``gymnasium.envs`` entry point the issue asks for; Gymnasium >= 1.0, which the project requires, no longer reads
-it.)
+module prefix: ``gymnasium.make("torquebed:torquebed/TorqueTracking-v0")``.
 
 Importing this module is light; ``register_envs()`` imports Gymnasium (~0.2 s), and the environment itself is
 :mod:`envs.torque_tracking`.

@@ -94,8 +94,8 @@ class TorqueTrackingEnv(gym.Env):
     writes no log file, see :mod:`sim.plant`).
 
     ## Arguments
-    ``gymnasium.make("torquebed/TorqueTracking-v0", **kwargs)`` after ``import sim`` (or
-    ``gymnasium.make("sim:torquebed/TorqueTracking-v0")``).
+    ``gymnasium.make("torquebed/TorqueTracking-v0", **kwargs)`` after ``import torquebed`` (or
+    ``gymnasium.make("torquebed:torquebed/TorqueTracking-v0")``).
 
     | Parameter | Type | Default | Description |
     |-----------|------|---------|-------------|

@@ -1,6 +1,4 @@
-"""The simulated testbed. Importing this package registers the Gymnasium environment
-``torquebed/TorqueTracking-v0`` (see :mod:`envs`)."""
+"""The simulated testbed: parameters, the plant, runs and their logs, and the discrepancy analysis.
 
-from envs import register_envs as _register_envs
-
-_register_envs()
+Importing it registers no Gymnasium environment; ``import torquebed`` does.
+"""

@@ -2,7 +2,9 @@
 vectorisation, and that one step is one tick of the experiments' loop."""
 
 import dataclasses
-import tomllib
+import re
+import subprocess
+import sys
 import warnings
 from pathlib import Path
 
@@ -11,7 +13,7 @@ import numpy as np
 import pytest
 from gymnasium.utils.env_checker import check_env
 
-import sim  # noqa: F401  (registers the environment)
+import torquebed
 from controllers.feedback import make_feedback
 from controllers.loop import run_torque_loop
 from controllers.pi import PITorqueController
@@ -60,8 +62,10 @@ def test_check_env_passes():
     assert not others
 
 
-def test_make_by_id_after_import_of_sim_and_registration_is_idempotent():
-    """gymnasium.make works with the registered id; registering twice does not raise."""
+def test_make_by_id_after_import_of_torquebed_and_registration_is_idempotent():
+    """gymnasium.make works with the id ``import torquebed`` registered; registering twice does not raise."""
+    gym.register_envs(torquebed)
+    assert ENV_ID in torquebed.ENV_IDS
     register_envs()
     env = gym.make(ENV_ID, episode_duration_s=SHORT_S)
     obs, _ = env.reset(seed=0)
@@ -69,25 +73,35 @@ def test_make_by_id_after_import_of_sim_and_registration_is_idempotent():
     assert isinstance(env.unwrapped, TorqueTrackingEnv)
 
 
-def test_a_fresh_interpreter_makes_the_env_with_gymnasiums_module_prefix():
-    """Gymnasium 1.x reads no entry points: without importing anything first, "sim:<id>" registers and makes it."""
-    import subprocess
-    import sys
-
-    code = ("import gymnasium, sys; assert 'sim' not in sys.modules; "
-            f"env = gymnasium.make('sim:{ENV_ID}'); print(env.spec.id)")
+def _fresh(code: str) -> str:
+    """stdout of ``code`` run in a fresh interpreter (its error output if it fails)."""
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=ROOT, timeout=120)
     assert out.returncode == 0, out.stderr
-    assert out.stdout.strip() == ENV_ID
+    return out.stdout.strip()
 
 
-def test_gymnasium_entry_point_in_pyproject_registers():
-    """The gymnasium.envs entry point names a function that registers the id."""
-    project = tomllib.loads((ROOT / "pyproject.toml").read_text())
-    target = project["project"]["entry-points"]["gymnasium.envs"]["torquebed"]
-    module, attr = target.split(":")
-    assert (module, attr) == ("envs", "register_envs")
-    assert ENV_ID in gym.registry
+@pytest.mark.parametrize("code", [
+    f"import gymnasium, torquebed; gymnasium.register_envs(torquebed); print(gymnasium.make('{ENV_ID}').spec.id)",
+    f"import gymnasium; print(gymnasium.make('torquebed:{ENV_ID}').spec.id)",  # Gymnasium's module prefix
+])
+def test_a_fresh_interpreter_makes_the_env_after_import_torquebed(code):
+    """Gymnasium 1.x reads no entry points: ``import torquebed`` (or the ``torquebed:`` prefix) registers the id."""
+    assert _fresh(code) == ENV_ID
+
+
+def test_the_simulation_packages_register_nothing_and_load_no_gymnasium():
+    """``import sim`` and the packages below the environments leave Gymnasium unloaded and the id unregistered."""
+    assert _fresh("import sys; import sim, sim.params, sim.plant, models, sensor.readout, controllers.loop; "
+                  "print('gymnasium' in sys.modules)") == "False"
+    assert _fresh(f"import gymnasium, sim, sim.plant; print('{ENV_ID}' in gymnasium.registry)") == "False"
+
+
+def test_the_readme_example_runs():
+    """The README's Python example of the environment runs as written, in a fresh interpreter."""
+    readme = (ROOT / "README.md").read_text()
+    blocks = re.findall(r"^```python\n(.*?)^```", readme, re.S | re.M)
+    assert len(blocks) == 1, "the README holds one Python example"
+    assert re.fullmatch(r"0\.\d+ N·m step: the load cell ends at \S+ N·m, RMS error \S+ N·m", _fresh(blocks[0]))
 
 
 def test_same_seed_same_episode_and_another_seed_differs():

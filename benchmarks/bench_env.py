@@ -7,7 +7,7 @@ Prints env steps per second of ``torquebed/TorqueTracking-v0`` through ``gymnasi
 included, like the peer's), with the breakdown of one step (``Plant.step`` alone; plus the sensor readout;
 per tick in µs: physics, the Python around it in ``Plant.step``, the sensor read, environment and wrappers),
 ``AsyncVectorEnv`` and ``SyncVectorEnv`` with 2 environments (total env steps per second), the peer's
-``env.step`` rate, and the slow-down of a closed-loop run (``run_torque_loop``, sensor feedback) by writing
+``env.step`` rate, and the slow-down of a closed-loop run (``controllers.tracking.run_tracking``, sensor feedback) by writing
 its rerun recording (``sim.recording.record_logs`` to an .rrd). ``--cpu-time`` times the in-process
 measurements by this process's CPU time instead of wall time (steadier on a loaded shared machine; the
 AsyncVectorEnv, whose work is in its workers, is then not measured).
@@ -31,8 +31,8 @@ import sim.plant
 import torquebed  # noqa: F401  (registers the environment)
 from benchmarks.bench_plant import PEER_ENV, best_rate, env_step_rate, peer_rate, require_peer
 from controllers.feedback import make_feedback
-from controllers.loop import run_torque_loop
 from controllers.pi import PITorqueController
+from controllers.tracking import run_tracking
 from envs import ENV_ID
 from sensor.readout import factory_calibration
 from sim.motor_torque import CurrentToTorqueMap
@@ -150,7 +150,7 @@ def recording_overhead(duration_s: float, repeats: int) -> dict[str, float]:
             plant = Plant(p, "locked")
             start = time.perf_counter()
             controller = PITorqueController(CurrentToTorqueMap.from_params(p).command_limit_nm)
-            log = run_torque_loop(plant, controller, make_feedback("sensor", p, 0), reference, meta={})
+            log = run_tracking(p, plant, controller, "sensor", 0, reference)
             runs.append(time.perf_counter() - start)
             start = time.perf_counter()
             record_logs({"sine": log}, p, path=Path(tmp) / f"r{i}.rrd")

@@ -35,6 +35,7 @@ the lever positive with the motor holding makes that negative, so the external t
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 from controllers.pi import PAPER_CONTROL_PERIOD_S, check_range
@@ -75,6 +76,8 @@ class AdmittanceController:
         (``CurrentToTorqueMap.command_limit_nm``: the command that delivers the 18 N·m peak torque).
     rest_angle_rad : float
         θ_0, the virtual spring's rest angle and the initial reference [rad].
+    measured : str
+        The observation key of the measured torque: τ_ext = -observation[measured] (the torque sensor).
 
     Attributes
     ----------
@@ -90,6 +93,9 @@ class AdmittanceController:
     period_s: float = PAPER_CONTROL_PERIOD_S
     output_limit_nm: float = DEFAULT_OUTPUT_LIMIT_NM
     rest_angle_rad: float = 0.0
+    measured: str = "tau_sensor"
+    # recorded by sim.run.run_loop every tick: the measured torque and the virtual state at the tick's start
+    log_units = {"tau_feedback": "N·m", "theta_ref": "rad", "omega_ref": "rad/s"}
 
     def __post_init__(self) -> None:
         self.desired_inertia_kgm2 = check_range("desired_inertia_kgm2", self.desired_inertia_kgm2, 0.0,
@@ -123,8 +129,20 @@ class AdmittanceController:
         """Start the virtual dynamics at rest at ``angle_rad`` (θ_0 if None) [rad]."""
         self.reference_angle_rad = self.rest_angle_rad if angle_rad is None else float(angle_rad)
         self.reference_velocity_rad_s = 0.0
+        self._logged = (math.nan, self.reference_angle_rad, 0.0)
 
-    def step(self, tau_ext_nm: float, angle_rad: float, velocity_rad_s: float) -> float:
+    def step(self, observation) -> float:
+        """One tick of a control loop (:class:`sim.run.Controller`): :meth:`update` with τ_ext = minus the
+        measured torque and the motor's angle ``q_motor`` and velocity ``qd_motor`` (output side)."""
+        measured = observation[self.measured]
+        self._logged = (measured, self.reference_angle_rad, self.reference_velocity_rad_s)
+        return self.update(-measured, observation["q_motor"], observation["qd_motor"])
+
+    def log_values(self) -> tuple[float, float, float]:
+        """The measured torque [N·m], θ_r [rad] and ω_r [rad/s] at the start of the last step."""
+        return self._logged
+
+    def update(self, tau_ext_nm: float, angle_rad: float, velocity_rad_s: float) -> float:
         """One tick (Eqs. 31-34): the torque command [N·m] from the external torque [N·m] and the measured
         angle [rad] and velocity [rad/s]; advances the virtual dynamics to the next tick."""
         theta_r, omega_r = self.reference_angle_rad, self.reference_velocity_rad_s

@@ -1,74 +1,69 @@
-"""Where a torque loop gets its measured torque: the motor driver's current-based estimate or the calibrated
-optical joint torque sensor.
+"""Where a torque loop gets its measured torque, and what each closed loop of the testbed observes.
 
-* ``current``: the driver's N·K_t·i, what a GIM8108 reports: :attr:`sim.plant.Plant.current_torque_estimate_nm`
-  (the driver assumes the nominal K_t). It is blind to the gear's friction, backlash, load-dependent losses and
-  the current-to-torque nonlinearity.
-* ``sensor``: :class:`sensor.readout.TorqueSensorReadout`, the photo-reflector array read once per tick from
-  the flexure's twist and the TMP117 temperature through the factory calibration (QP), with its channel
-  noise, ADC quantisation, hysteresis and thermal drift.
+* ``current``: the driver's N·K_t·i, what a GIM8108 reports (:class:`sim.measurements.CurrentEstimate`,
+  observation key ``tau_current_estimate``; the driver assumes the nominal K_t). It is blind to the gear's
+  friction, backlash, load-dependent losses and the current-to-torque nonlinearity.
+* ``sensor``: :class:`sensor.readout.TorqueSensorReadout` (key ``tau_sensor``), the photo-reflector array read
+  once per tick from the flexure's twist and the TMP117 temperature through the factory calibration (QP), with
+  its channel noise, ADC quantisation, hysteresis and thermal drift.
 """
 
 from __future__ import annotations
 
-from typing import Protocol
+from collections.abc import Callable
 
+from sensor.readout import TorqueSensorReadout
+from sim.measurements import CurrentEstimate, LoadCell, MotorEncoder, MotorVelocity
 from sim.params import TestbedParams
+from sim.run import Controller, Measurement
 
 FEEDBACK_KINDS = ("current", "sensor")
 
-
-class TorqueFeedback(Protocol):
-    """A measured torque [N·m], read from the plant once per control tick."""
-
-    kind: str
-
-    def read(self, plant) -> float: ...
-
-    def reset(self) -> None: ...
+# A user's controller for the experiments: built per run from the parameters and the feedback kind.
+ControllerFactory = Callable[[TestbedParams, str], Controller]
 
 
-class CurrentFeedback:
-    """The driver's current-based torque estimate N·K_t·i [N·m, output side]."""
-
-    kind = "current"
-
-    def read(self, plant) -> float:
-        return plant.current_torque_estimate_nm
-
-    def reset(self) -> None:
-        """Stateless."""
-
-
-class SensorFeedback:
-    """The calibrated optical torque sensor [N·m] (noise drawn from ``seed``)."""
-
-    kind = "sensor"
-
-    def __init__(self, params: TestbedParams | None = None, seed: int = 0, calibration=None) -> None:
-        from sensor.readout import TorqueSensorReadout
-
-        self.readout = TorqueSensorReadout(params, calibration, seed=seed)
-
-    def read(self, plant) -> float:
-        return self.readout.read_plant(plant)
-
-    def reset(self) -> None:
-        self.readout.reset()
-
-    @property
-    def voltages_v(self):
-        """The eight channel voltages [V] of the last read (NaN before the first)."""
-        return self.readout.voltages_v
+def check_feedback(kind: str) -> str:
+    """``kind`` if it is a feedback kind, else ValueError naming the valid ones."""
+    if kind not in FEEDBACK_KINDS:
+        raise ValueError(f"feedback = {kind!r}: valid values are {', '.join(FEEDBACK_KINDS)}")
+    return kind
 
 
 def make_feedback(kind: str, params: TestbedParams | None = None, seed: int = 0,
-                  calibration=None) -> TorqueFeedback:
-    """The feedback source named ``kind`` ('current' or 'sensor'); ``seed`` drives the sensor's noise;
+                  calibration=None) -> Measurement:
+    """The torque measurement named ``kind`` ('current' or 'sensor'); ``seed`` drives the sensor's noise;
     ``calibration`` (a :class:`sensor.calibration.Calibration`) replaces the sensor's factory calibration of
     ``params`` (e.g. the nominal unit's calibration read by a unit whose parameters drifted)."""
-    if kind == "current":
-        return CurrentFeedback()
-    if kind == "sensor":
-        return SensorFeedback(params, seed, calibration)
-    raise ValueError(f"feedback = {kind!r}: valid values are {', '.join(FEEDBACK_KINDS)}")
+    if check_feedback(kind) == "current":
+        return CurrentEstimate()
+    return TorqueSensorReadout(params, calibration, seed=seed)
+
+
+def loop_measurements(kind: str, params: TestbedParams, seed: int = 0, calibration=None) -> list[Measurement]:
+    """What a closed loop of the experiments observes: the ``kind`` torque measurement (noise of ``seed``) and
+    the motor's encoder and velocity."""
+    return [make_feedback(kind, params, seed, calibration), MotorEncoder(), MotorVelocity()]
+
+
+def grading_loadcell(params: TestbedParams, seed: int = 0) -> LoadCell:
+    """The load cell the paper's figures are measured on, with the noise stream of ``seed``: recorded by a run,
+    not observed by its controller."""
+    return LoadCell(params, seed)
+
+
+def build_controller(controller: Controller | ControllerFactory | None, default: ControllerFactory,
+                     params: TestbedParams, kind: str) -> Controller:
+    """The controller of one run: ``default(params, kind)`` if ``controller`` is None, a factory's
+    ``controller(params, kind)``, or the given controller, reset."""
+    if controller is None:
+        return default(params, kind)
+    if callable(controller) and not hasattr(controller, "step"):
+        built = controller(params, kind)
+    else:
+        built = controller
+        built.reset()
+    if not (callable(getattr(built, "step", None)) and callable(getattr(built, "reset", None))):
+        raise TypeError(f"controller {built!r}: expected an object with reset() and step(observation) -> float "
+                        f"(sim.run.Controller), or a factory (params, feedback) -> such an object")
+    return built

@@ -39,7 +39,8 @@ import math
 import numbers
 from dataclasses import dataclass
 
-from sim.params import range_text
+from sim.motor_torque import CurrentToTorqueMap
+from sim.params import TestbedParams, range_text
 
 # Paper Sec. V: PI gains and back-calculation gain of the torque loop, 1 kHz control cycle.
 PAPER_KP = 0.12  # [-] N·m command per N·m error
@@ -80,6 +81,11 @@ class PITorqueController:
         Control period T_s [s].
     feedforward_gain : float
         Reference feed-forward K_ff [-] (1: the reference is the driver's torque command; 0: pure PI).
+    measured : str
+        The observation key of the measured torque the PI closes on (:meth:`step`): ``"tau_sensor"`` (the
+        optical sensor) or ``"tau_current_estimate"`` (the driver's estimate).
+    velocity_damping_nms_per_rad : float
+        K_d [N·m·s/rad], >= 0: ``- K_d·qd_motor`` is added to the PI's limited command (0: the paper's PI).
 
     Attributes
     ----------
@@ -93,6 +99,9 @@ class PITorqueController:
     antiwindup_per_s: float = PAPER_ANTIWINDUP_PER_S
     period_s: float = PAPER_CONTROL_PERIOD_S
     feedforward_gain: float = REFERENCE_FEEDFORWARD
+    measured: str = "tau_sensor"
+    velocity_damping_nms_per_rad: float = 0.0
+    log_units = {"tau_feedback": "N·m"}  # the measured torque of each tick, recorded by sim.run.run_loop
 
     def __post_init__(self) -> None:
         self.output_limit_nm = check_range("output_limit_nm", self.output_limit_nm, 0.0, low_open=True)
@@ -101,19 +110,37 @@ class PITorqueController:
         self.antiwindup_per_s = check_range("antiwindup_per_s", self.antiwindup_per_s, 0.0)
         self.period_s = check_range("period_s", self.period_s, 0.0, low_open=True)
         self.feedforward_gain = check_range("feedforward_gain", self.feedforward_gain, 0.0)
+        self.velocity_damping_nms_per_rad = check_range("velocity_damping_nms_per_rad",
+                                                        self.velocity_damping_nms_per_rad, 0.0)
+        if not isinstance(self.measured, str) or not self.measured:
+            raise ValueError(f"measured = {self.measured!r}: expected an observation key, e.g. 'tau_sensor'")
         self.reset()
 
     def reset(self, integrator_nm: float = 0.0) -> None:
         """Set the integrator state i [N·m]."""
         self.integrator_nm = float(integrator_nm)
+        self._measured_nm = math.nan
 
-    def step(self, tau_ref_nm: float, tau_measured_nm: float) -> float:
-        """One tick: the torque command u_k [N·m] for reference and measured torque [N·m].
+    def step(self, observation) -> float:
+        """One tick of a control loop (:class:`sim.run.Controller`): the command [N·m] for the observation's
+        ``tau_ref`` and measured torque (key :attr:`measured`), minus K_d·``qd_motor`` if K_d > 0."""
+        self._measured_nm = observation[self.measured]
+        command = self.update(observation["tau_ref"], self._measured_nm)
+        if self.velocity_damping_nms_per_rad:
+            command -= self.velocity_damping_nms_per_rad * observation["qd_motor"]
+        return command
+
+    def log_values(self) -> tuple[float]:
+        """The measured torque [N·m] the last step closed on."""
+        return (self._measured_nm,)
+
+    def update(self, tau_ref_nm: float, tau_measured_nm: float) -> float:
+        """The PI law of one tick: the torque command u_k [N·m] for reference and measured torque [N·m].
 
         Raises ValueError on a non-finite input (a NaN would stay in the integrator for good).
         """
         if not (math.isfinite(tau_ref_nm) and math.isfinite(tau_measured_nm)):
-            raise ValueError(f"PITorqueController.step: tau_ref_nm = {tau_ref_nm!r}, tau_measured_nm = "
+            raise ValueError(f"PITorqueController.update: tau_ref_nm = {tau_ref_nm!r}, tau_measured_nm = "
                              f"{tau_measured_nm!r}: both must be finite (a NaN or inf reading, e.g. from a "
                              f"disconnected sensor, would stay in the integrator)")
         error = tau_ref_nm - tau_measured_nm
@@ -122,3 +149,13 @@ class PITorqueController:
         self.integrator_nm += self.period_s * (self.ki_per_s * error
                                                + self.antiwindup_per_s * (command - unsaturated))
         return command
+
+
+FEEDBACK_KEYS = {"current": "tau_current_estimate", "sensor": "tau_sensor"}  # feedback kind -> observation key
+
+
+def paper_pi(params: TestbedParams, feedback: str) -> PITorqueController:
+    """The paper's PI torque controller (gains of Sec. V) closing on the ``feedback`` measurement, limited to
+    the driver's current limit, at the plant's control period: the default controller of the torque tests."""
+    return PITorqueController(output_limit_nm=CurrentToTorqueMap.from_params(params).command_limit_nm,
+                              period_s=params.simulation.control_period_s, measured=FEEDBACK_KEYS[feedback])

@@ -1,4 +1,4 @@
-"""Tracking-error figures of the paper's motor experiments (Tables VI-VII), defined once.
+"""The torque-tracking run of the paper's motor experiments and its error figures (Tables VI-VII), defined once.
 
 Errors are measured as the paper does, on the torque the load cell sees (force x lever length) against the
 reference, over an evaluation window:
@@ -23,6 +23,12 @@ from __future__ import annotations
 from dataclasses import asdict, dataclass
 
 import numpy as np
+
+from controllers.feedback import grading_loadcell, loop_measurements
+from sim.params import TestbedParams
+from sim.plant import Plant
+from sim.run import Controller, run_loop
+from sim.runlog import RunLog
 
 
 @dataclass(frozen=True)
@@ -70,3 +76,17 @@ def tracking_error(output_nm, reference_nm) -> TrackingError:
     return TrackingError(rms_nm=float(np.sqrt(np.mean(e * e))), peak_nm=float(abs(y.max() - r.max())),
                          trough_nm=float(abs(y.min() - r.min())), max_abs_nm=float(np.abs(e).max()),
                          mean_output_nm=float(y.mean()), mean_reference_nm=float(r.mean()))
+
+
+def run_tracking(params: TestbedParams, plant: Plant, controller: Controller, feedback: str, seed: int,
+                 reference_nm: np.ndarray, *, tau_hub_nm: np.ndarray | None = None, label: str | None = None,
+                 meta: dict | None = None) -> RunLog:
+    """A torque-tracking run of the experiments: ``controller`` observes the reference, the ``feedback``
+    measurement and the motor's encoder and velocity; the load cell that grades it (noise of ``seed``) is
+    recorded as ``tau_loadcell``."""
+    return run_loop(plant, controller, len(reference_nm), measurements=loop_measurements(feedback, params, seed),
+                    recorded=[grading_loadcell(params, seed)], tau_ref_nm=reference_nm, tau_hub_nm=tau_hub_nm,
+                    progress_label=label,
+                    meta={"feedback": feedback, "seed": seed,
+                          "loadcell_reading_noise_n": params.loadcell.reading_noise_n,
+                          "torque_saturation_per_nm": params.motor.torque_saturation_per_nm, **(meta or {})})

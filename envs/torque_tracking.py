@@ -1,5 +1,5 @@
 """``torquebed/TorqueTracking-v0``: torque tracking on the simulated GIM8108 testbed, one step per 1 ms control
-tick, the loop the experiments run (:func:`controllers.loop.run_torque_loop`) opened for an agent."""
+tick of the loop the experiments run (:class:`sim.run.ControlLoop`), opened for an agent."""
 
 from __future__ import annotations
 
@@ -14,9 +14,11 @@ from controllers.feedback import make_feedback
 from envs.randomization import check_scale, randomize_params
 from envs.references import TASK_CHOICES, TASKS, Reference, make_reference
 from sensor.readout import factory_calibration
+from sim.measurements import BoardThermometer, CurrentEstimate, LoadCell, MotorEncoder, MotorVelocity
 from sim.motor_torque import CurrentToTorqueMap
 from sim.params import TestbedParams
 from sim.plant import Plant, SimulationDiverged
+from sim.run import ControlLoop
 
 FIXTURES = ("locked", "free")
 OBSERVATION_NAMES = ("tau_ref", "tau_sensor", "q_motor", "qd_motor", "tau_current_estimate", "temperature")
@@ -35,7 +37,7 @@ class TorqueTrackingEnv(gym.Env):
     ('free'). The agent is the torque controller running at the paper's 1 kHz: every step it reads what a real
     controller reads and commands a motor torque; the goal is that the torque the load cell measures follows
     a reference (the paper's step, sine and square tasks, or random ones). One step is exactly one tick of the
-    loop the experiments run (:func:`controllers.loop.run_torque_loop`): read the sensors at the end of the
+    loop the experiments run (:class:`sim.run.ControlLoop`): read the sensors at the end of the
     previous tick, command, the plant advances one control period (``n_substeps`` physics steps) with the
     torque the motor delivers for the command (the current-to-torque droop of :mod:`sim.motor_torque`).
 
@@ -62,7 +64,7 @@ class TorqueTrackingEnv(gym.Env):
     | 1 | joint torque sensor reading | N·m | photo-reflector array through its factory calibration (noise, ADC, hysteresis, drift) |
     | 2 | motor angle, output side | rad | encoder |
     | 3 | motor velocity, output side | rad/s | driver |
-    | 4 | driver's current-based torque estimate | N·m | N·K_t·i through the inverse current-to-torque map (``controllers.feedback.CurrentFeedback``) |
+    | 4 | driver's current-based torque estimate | N·m | N·K_t·i through the inverse current-to-torque map (``sim.measurements.CurrentEstimate``) |
     | 5 | sensor board temperature | °C | TMP117 reading |
 
     The load-cell torque is not observed (it is what the reward grades); it is in ``info``.
@@ -148,6 +150,7 @@ class TorqueTrackingEnv(gym.Env):
         self._calibration = factory_calibration(self.nominal_params)
         self.params = self.nominal_params
         self.plant = Plant(self.params, fixture)
+        self._loop: ControlLoop | None = None
         self._obs = np.zeros(len(OBSERVATION_NAMES))
         self.reference: Reference | None = None
         self._k = 0
@@ -167,9 +170,12 @@ class TorqueTrackingEnv(gym.Env):
                                         opts.get("frequency_hz"))
         sensor_params = self.params if self.feedback_noise else self.params.replace(
             photoreflector={"noise_min_v": 0.0, "noise_max_v": 0.0})
-        self._sensor = make_feedback("sensor", sensor_params, int(rng.integers(2**31)), self._calibration)
-        self._current = make_feedback("current", self.params)
-        self._loadcell_noise = self._draw_loadcell_noise(np.random.default_rng(int(rng.integers(2**63))))
+        sensor = make_feedback("sensor", sensor_params, int(rng.integers(2**31)), self._calibration)
+        self._loop = ControlLoop(self.plant, (sensor, MotorEncoder(), MotorVelocity(), CurrentEstimate(),
+                                              BoardThermometer()))
+        self._loop.reset()
+        loadcell_rng = np.random.default_rng(int(rng.integers(2**63)))
+        self._loadcell = LoadCell(self.params, loadcell_rng if self.feedback_noise else None)
         # what the driver applies: the box, or less if this episode's (randomised) motor reaches its peak sooner
         self._command_limit = min(self._box_limit_nm, CurrentToTorqueMap.from_params(self.params).command_limit_nm)
         self._scale = self.reference.scale_nm
@@ -187,15 +193,10 @@ class TorqueTrackingEnv(gym.Env):
         ref = self._reference_nm[self._k]
         plant = self.plant
         try:
-            plant.step(command)
+            self._loop.advance(command)
         except SimulationDiverged as exc:
             return self._obs.copy(), 0.0, True, False, {"diverged": True, "message": str(exc)}
-        if self.fixture == "locked":
-            output = plant.loadcell_torque_nm
-            if self._loadcell_noise is not None:
-                output += self._loadcell_noise[self._k]
-        else:
-            output = plant.flexure_torque_nm
+        output = self._loadcell.read(plant)
         self._k += 1
         error = output - ref
         u = command / self._box_limit_nm
@@ -227,30 +228,26 @@ class TorqueTrackingEnv(gym.Env):
                              f"action space are clipped to it; NaN and ±inf are refused)")
         return value
 
-    def _draw_loadcell_noise(self, rng: np.random.Generator) -> list[float] | None:
-        """The load cell's reading noise of every step of the episode [N·m] (None when it has none).
-
-        Drawn at reset in one call (``Generator.normal`` with a size draws the values the per-step calls would,
-        in the same order; a step cannot be taken past the episode's end) instead of one call per step.
-        """
-        sigma_nm = self.params.loadcell.reading_noise_n * self.params.lever.length_m if self.feedback_noise else 0.0
-        if self.fixture != "locked" or not sigma_nm:
-            return None
-        return rng.normal(0.0, sigma_nm, self.n_steps).tolist()
-
     def _observe(self) -> None:
-        plant, obs = self.plant, self._obs
-        obs[0] = self._reference_nm[min(self._k, self.n_steps - 1)]  # last one held at the end
-        obs[1] = self._sensor.read(plant)
-        obs[2] = plant.motor_angle_rad
-        obs[3] = plant.motor_velocity_rad_s
-        obs[4] = self._current.read(plant)
-        obs[5] = plant.tmp117_temperature_c
+        """The observation vector of OBSERVATION_NAMES from the loop's measurements."""
+        observed = self._loop.observe(self._reference_nm[min(self._k, self.n_steps - 1)])  # last one held at the end
+        self._obs[:] = [observed[name] for name in OBSERVATION_NAMES]
+
+    @property
+    def plant(self) -> Plant:
+        """The simulated rig of the current episode."""
+        return self._plant
+
+    @plant.setter
+    def plant(self, plant: Plant) -> None:
+        self._plant = plant
+        if getattr(self, "_loop", None) is not None:
+            self._loop.plant = plant
 
     @property
     def channel_voltages_v(self) -> np.ndarray:
         """The eight photo-reflector voltages [V] of the last observation (a new array)."""
-        return self._sensor.voltages_v
+        return self._loop.measurements[0].voltages_v
 
     def _check_options(self, options: dict[str, Any] | None) -> dict[str, Any]:
         if options is None:

@@ -25,16 +25,22 @@ from pathlib import Path
 
 import numpy as np
 
-from controllers.admittance import (PAPER_DESIRED_DAMPING_NMS_PER_RAD, PAPER_DESIRED_INERTIA_KGM2,
-                                    AdmittanceController)
-from controllers.feedback import make_feedback
-from controllers.loop import run_admittance_loop
-from experiments.common import (add_experiment_args, cli_parser, load_params_arg, record_rerun, run_errors,
-                                short_run_banner, write_outputs)
+from controllers.admittance import PAPER_DESIRED_DAMPING_NMS_PER_RAD, PAPER_DESIRED_INERTIA_KGM2, AdmittanceController
+from controllers.feedback import ControllerFactory, build_controller, loop_measurements
+from experiments.common import (
+    add_experiment_args,
+    cli_parser,
+    load_params_arg,
+    record_rerun,
+    run_errors,
+    short_run_banner,
+    write_outputs,
+)
 from sim.figures import save_figure
 from sim.motor_torque import CurrentToTorqueMap
 from sim.params import ParameterError, TestbedParams
 from sim.plant import Plant
+from sim.run import Controller, run_loop
 from sim.runlog import RunLog
 
 HAND_STIFFNESS_NM_PER_RAD = 5.0  # assumed: 500 N/m at the 0.1 m tip, a relaxed human grip
@@ -168,18 +174,23 @@ def make_controller(params: TestbedParams) -> AdmittanceController:
 
 
 def run_push(params: TestbedParams, push_s: float, name: str, seed: int = 0, duration_s: float | None = None,
-             progress: bool = False) -> PushOutcome:
-    """One push of the scripted hand on the free lever under admittance control."""
+             progress: bool = False, controller: Controller | ControllerFactory | None = None) -> PushOutcome:
+    """One push of the scripted hand on the free lever under admittance control (``controller``: as for
+    :func:`run_admittance`)."""
     dt = params.simulation.control_period_s
     hand = ScriptedHand(push_s, period_s=dt)
     if duration_s is not None:  # short mode: the same push, cut short
         hand = ScriptedHand(min(push_s, duration_s), period_s=dt, before_s=min(REST_BEFORE_S, duration_s / 4),
                             after_s=min(REST_AFTER_S, duration_s / 4))
     plant = Plant(params, "free")
-    controller = make_controller(params)
-    log = run_admittance_loop(plant, controller, make_feedback("sensor", params, seed), hand,
-                              progress_label=f"{name} push" if progress else None,
-                              meta={"push_s": hand.push_s, "seed": seed})
+
+    def hand_torque(k: int, plant: Plant) -> float:
+        return hand.torque_nm(k, plant.output_angle_rad, plant.output_velocity_rad_s)
+
+    log = run_loop(plant, build_controller(controller, lambda p, _: make_controller(p), params, "sensor"),
+                   hand.n_ticks, measurements=loop_measurements("sensor", params, seed), external=hand_torque,
+                   progress_label=f"{name} push" if progress else None,
+                   meta={"feedback": "sensor", "push_s": hand.push_s, "seed": seed})
     hand_angle, _ = hand.path(log["time"])
     omega, omega_ref = log["qd_motor"], log["omega_ref"]
     peak_torque = float(np.abs(log["tau_ext"]).max())
@@ -192,11 +203,18 @@ def run_push(params: TestbedParams, push_s: float, name: str, seed: int = 0, dur
 
 
 def run_admittance(params: TestbedParams | None = None, seed: int = 0, duration_s: float | None = None,
-                   progress: bool = False) -> AdmittanceResult:
-    """The slow and the fast push (``duration_s`` caps each push: short mode)."""
+                   progress: bool = False,
+                   controller: Controller | ControllerFactory | None = None) -> AdmittanceResult:
+    """The slow and the fast push (``duration_s`` caps each push: short mode).
+
+    ``controller``: the controller of each push (:class:`sim.run.Controller`, reset before each), or a factory
+    ``(params, "sensor") -> Controller``; by default the paper's admittance controller
+    (:func:`make_controller`). It observes ``tau_sensor``, ``q_motor`` and ``qd_motor``; the hand's torque
+    on the lever is ``tau_ext`` in the logs.
+    """
     params = params or TestbedParams()
-    return AdmittanceResult([run_push(params, SLOW_PUSH_S, "slow", seed, duration_s, progress),
-                             run_push(params, FAST_PUSH_S, "fast", seed, duration_s, progress)], seed)
+    return AdmittanceResult([run_push(params, SLOW_PUSH_S, "slow", seed, duration_s, progress, controller),
+                             run_push(params, FAST_PUSH_S, "fast", seed, duration_s, progress, controller)], seed)
 
 
 def format_result(result: AdmittanceResult) -> str:

@@ -306,34 +306,6 @@ def feedback_kinds(choice: str) -> tuple[str, ...]:
     return ("current", "sensor") if choice == "both" else (choice,)
 
 
-LOADCELL_NOISE_STREAM = 0x10AD  # spawn key separating the load cell's noise from the sensor's for one seed
-
-
-def loadcell_torque_nm(log, seed: int | None = None, noise_n: float | None = None) -> np.ndarray:
-    """The torque the load cell reports, force x lever length [N·m], from a run log.
-
-    With ``seed`` the reading carries the load cell's white noise, drawn from its own stream of ``seed``, of
-    standard deviation ``noise_n`` [N], by default the run's ``loadcell.reading_noise_n`` from the log's
-    metadata (``controllers.loop`` writes it); without ``seed``, the true force.
-
-    Raises
-    ------
-    ValueError
-        If ``seed`` is given, ``noise_n`` is not, and the log's metadata lack ``loadcell_reading_noise_n``.
-    """
-    torque = log["force_loadcell"] * log.meta["lever_length_m"]
-    if seed is not None and noise_n is None:
-        if "loadcell_reading_noise_n" not in log.meta:
-            raise ValueError("the log's metadata lack 'loadcell_reading_noise_n' (logs made before it was recorded, "
-                             "or not by controllers.loop): pass noise_n, e.g. TestbedParams().loadcell."
-                             "reading_noise_n (N)")
-        noise_n = log.meta["loadcell_reading_noise_n"]
-    if seed is None or noise_n == 0.0:
-        return torque
-    rng = np.random.default_rng([seed, LOADCELL_NOISE_STREAM])
-    return torque + rng.normal(0.0, noise_n * log.meta["lever_length_m"], len(torque))
-
-
 TARGET_RATIO = 1.5  # the target band: every simulated figure within a factor 1.5 of the paper's
 
 

@@ -28,19 +28,26 @@ from pathlib import Path
 
 import numpy as np
 
-from controllers.feedback import FEEDBACK_KINDS, make_feedback
-from controllers.loop import run_torque_loop
-from controllers.pi import PITorqueController
-from controllers.tracking import TrackingError, tracking_error
-from experiments.common import (add_experiment_args, cli_parser, feedback_kinds, format_rows, load_params_arg,
-                                loadcell_torque_nm, paper_row, record_rerun, run_errors, short_run_banner,
-                                write_outputs)
+from controllers.feedback import FEEDBACK_KINDS, ControllerFactory, build_controller, check_feedback
+from controllers.pi import paper_pi
+from controllers.tracking import TrackingError, run_tracking, tracking_error
+from experiments.common import (
+    add_experiment_args,
+    cli_parser,
+    feedback_kinds,
+    format_rows,
+    load_params_arg,
+    paper_row,
+    record_rerun,
+    run_errors,
+    short_run_banner,
+    write_outputs,
+)
 from sim.figures import save_figure
-from sim.motor_torque import CurrentToTorqueMap
 from sim.params import TestbedParams
 from sim.plant import Plant
 from sim.protocols import WAVEFORMS, Waveform
-from sim.run import run_open_loop
+from sim.run import Controller, run_open_loop
 from sim.runlog import RunLog
 
 TEST_DURATION_S = 10.0  # [s] two periods of the 0.2 Hz sines, ten of the square wave (assumed)
@@ -113,19 +120,19 @@ def precondition(params: TestbedParams) -> Plant:
 
 
 def run_sinusoid_case(params: TestbedParams, feedback: str, waveform: Waveform, seed: int = 0,
-                      duration_s: float = TEST_DURATION_S, progress: bool = False) -> SinusoidCase:
-    """One waveform under ``feedback`` from the preconditioned rig (see the module docstring)."""
+                      duration_s: float = TEST_DURATION_S, progress: bool = False,
+                      controller: Controller | ControllerFactory | None = None) -> SinusoidCase:
+    """One waveform under ``feedback`` from the preconditioned rig (see the module docstring);
+    ``controller`` as for :func:`experiments.step.run_step` (default the paper's PI)."""
     plant = precondition(params)
     dt = params.simulation.control_period_s
     n_warmup = round(min(WARMUP_PERIODS / waveform.frequency_hz, duration_s) / dt)  # short mode: short warm-up
     t = np.arange(1, n_warmup + round(duration_s / dt) + 1) * dt
     reference = waveform.reference(t - dt)  # the reference of tick k is applied from the start of tick k
-    limit_nm = CurrentToTorqueMap.from_params(params).command_limit_nm  # the driver's current limit
-    controller = PITorqueController(output_limit_nm=limit_nm, period_s=dt)
-    log = run_torque_loop(plant, controller, make_feedback(feedback, params, seed), reference,
-                          progress_label=f"{waveform.name}, {feedback}" if progress else None,
-                          meta={"waveform": waveform.name, "seed": seed, "warmup_ticks": n_warmup})
-    output = loadcell_torque_nm(log, seed)[n_warmup:]
+    log = run_tracking(params, plant, build_controller(controller, paper_pi, params, feedback), feedback, seed,
+                       reference, label=f"{waveform.name}, {feedback}" if progress else None,
+                       meta={"waveform": waveform.name, "warmup_ticks": n_warmup})
+    output = log["tau_loadcell"][n_warmup:]
     reference = reference[n_warmup:]
     positive_share = float(np.clip(output, 0.0, None).sum() / max(np.abs(output).sum(), 1e-300))
     output_level = float(np.abs(output).mean() / max(np.abs(reference).mean(), 1e-300))
@@ -135,14 +142,15 @@ def run_sinusoid_case(params: TestbedParams, feedback: str, waveform: Waveform, 
 
 
 def run_sinusoid(params: TestbedParams | None = None, feedbacks: tuple[str, ...] = FEEDBACK_KINDS,
-                 seed: int = 0, duration_s: float | None = None, progress: bool = False) -> SinusoidResult:
-    """The paper's three waveforms under each feedback (``duration_s`` shortens each run: short mode)."""
+                 seed: int = 0, duration_s: float | None = None, progress: bool = False,
+                 controller: Controller | ControllerFactory | None = None) -> SinusoidResult:
+    """The paper's three waveforms under each feedback (``duration_s`` shortens each run: short mode);
+    ``controller`` as for :func:`experiments.step.run_step` (default the paper's PI)."""
     params = params or TestbedParams()
     for kind in feedbacks:
-        if kind not in FEEDBACK_KINDS:
-            raise ValueError(f"feedback = {kind!r}: valid values are {', '.join(FEEDBACK_KINDS)}")
+        check_feedback(kind)
     duration = TEST_DURATION_S if duration_s is None else duration_s
-    return SinusoidResult([run_sinusoid_case(params, kind, w, seed, duration, progress)
+    return SinusoidResult([run_sinusoid_case(params, kind, w, seed, duration, progress, controller)
                            for kind in feedbacks for w in WAVEFORMS], seed)
 
 
@@ -161,7 +169,7 @@ def plot_sinusoid(result: SinusoidResult, directory: Path) -> Path:
         warmup = log.meta["warmup_ticks"]
         if warmup:
             ax.axvspan(log["time"][0], log["time"][warmup - 1], color="0.92", label="warm-up, not evaluated")
-        ax.plot(log["time"], loadcell_torque_nm(log, result.seed), lw=0.8,
+        ax.plot(log["time"], log["tau_loadcell"], lw=0.8,
                 color="tab:green" if c.feedback == "current" else "tab:gray", label="load cell")
         ax.plot(log["time"], log["tau_ref"], "k--", lw=0.8, label="reference")
         ax.set(title=f"{c.waveform.name}, {c.feedback} fb\nRMS error {c.error.rms_nm:.4f} N·m (paper "

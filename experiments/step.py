@@ -33,18 +33,26 @@ from pathlib import Path
 
 import numpy as np
 
-from controllers.feedback import FEEDBACK_KINDS, make_feedback
-from controllers.loop import run_torque_loop
-from controllers.pi import PITorqueController
-from controllers.tracking import TrackingError, tracking_error
-from experiments.common import (add_experiment_args, cli_parser, feedback_kinds, format_rows, load_params_arg,
-                                loadcell_torque_nm, paper_row, record_rerun, run_errors, short_run_banner,
-                                write_outputs)
+from controllers.feedback import FEEDBACK_KINDS, ControllerFactory, build_controller, check_feedback
+from controllers.pi import paper_pi
+from controllers.tracking import TrackingError, run_tracking, tracking_error
+from experiments.common import (
+    add_experiment_args,
+    cli_parser,
+    feedback_kinds,
+    format_rows,
+    load_params_arg,
+    paper_row,
+    record_rerun,
+    run_errors,
+    short_run_banner,
+    write_outputs,
+)
 from sim.figures import save_figure
-from sim.motor_torque import CurrentToTorqueMap
 from sim.params import TestbedParams
 from sim.plant import Plant
 from sim.protocols import PRE_STEP_S, STEPS_NM
+from sim.run import Controller
 from sim.runlog import RunLog
 
 # Paper Table VI: RMS error [N·m] against the load-cell torque.
@@ -149,24 +157,21 @@ def _disturbance_row(c: StepCase, label: str) -> dict:
                      PAPER_DISTURBANCE_LOST_NM[c.feedback], lost if lost > 0.0 else None)
 
 
-def _controller(params: TestbedParams) -> PITorqueController:
-    return PITorqueController(output_limit_nm=CurrentToTorqueMap.from_params(params).command_limit_nm,
-                              period_s=params.simulation.control_period_s)
-
-
 def run_step_case(params: TestbedParams, feedback: str, step_nm: float, seed: int = 0,
-                  hold_s: float = STEP_HOLD_S, progress: bool = False) -> StepCase:
-    """One torque step from rest under ``feedback``; errors over the settled part of the hold."""
+                  hold_s: float = STEP_HOLD_S, progress: bool = False,
+                  controller: Controller | ControllerFactory | None = None) -> StepCase:
+    """One torque step from rest under ``feedback``; errors over the settled part of the hold.
+    ``controller``: as for :func:`run_step`."""
     plant = Plant(params, "locked")
     plant.reset(backlash_side=int(np.sign(step_nm)))
     dt = params.simulation.control_period_s
     n_pre, n_hold = round(PRE_STEP_S / dt), round(hold_s / dt)
     reference = np.concatenate([np.zeros(n_pre), np.full(n_hold, step_nm)])
-    log = run_torque_loop(plant, _controller(params), make_feedback(feedback, params, seed), reference,
-                          progress_label=f"step {step_nm:g} N·m, {feedback}" if progress else None,
-                          meta={"step_nm": step_nm, "seed": seed})
+    log = run_tracking(params, plant, build_controller(controller, paper_pi, params, feedback), feedback, seed,
+                       reference, label=f"step {step_nm:g} N·m, {feedback}" if progress else None,
+                       meta={"step_nm": step_nm})
     window = slice(n_pre + min(round(SETTLE_S / dt), n_hold // 2), None)
-    err = tracking_error(loadcell_torque_nm(log, seed)[window], reference[window])
+    err = tracking_error(log["tau_loadcell"][window], reference[window])
     return StepCase(f"step {step_nm:g} N·m", feedback, step_nm, err, PAPER_STEP_RMS_NM[(feedback, step_nm)],
                     window_s=(float(log["time"][window][0]), float(log["time"][-1])), log=log)
 
@@ -181,16 +186,18 @@ def disturbance_profile(params: TestbedParams, duration_s: float | None = None) 
 
 
 def run_disturbance_case(params: TestbedParams, feedback: str, seed: int = 0, duration_s: float | None = None,
-                         progress: bool = False) -> StepCase:
-    """Regulation at 0.5 N·m while the flange disturbance grows; errors up to where regulation is lost."""
+                         progress: bool = False,
+                         controller: Controller | ControllerFactory | None = None) -> StepCase:
+    """Regulation at 0.5 N·m while the flange disturbance grows; errors up to where regulation is lost.
+    ``controller``: as for :func:`run_step`."""
     plant = Plant(params, "locked")
     plant.reset(backlash_side=1)
     hub = disturbance_profile(params, duration_s)
     reference = np.full(len(hub), REGULATED_NM)
-    log = run_torque_loop(plant, _controller(params), make_feedback(feedback, params, seed), reference,
-                          tau_hub_nm=hub, progress_label=f"disturbance, {feedback}" if progress else None,
-                          meta={"regulated_nm": REGULATED_NM, "seed": seed})
-    output = loadcell_torque_nm(log, seed)
+    log = run_tracking(params, plant, build_controller(controller, paper_pi, params, feedback), feedback, seed,
+                       reference, tau_hub_nm=hub, label=f"disturbance, {feedback}" if progress else None,
+                       meta={"regulated_nm": REGULATED_NM})
+    output = log["tau_loadcell"]
     dt = params.simulation.control_period_s
     start = min(round(PRE_DISTURBANCE_S / dt), len(hub) // 2)
     lost = np.flatnonzero(np.abs(output[start:] - REGULATED_NM) > REGULATION_LOST_NM)
@@ -203,7 +210,8 @@ def run_disturbance_case(params: TestbedParams, feedback: str, seed: int = 0, du
 
 
 def run_step(params: TestbedParams | None = None, feedbacks: tuple[str, ...] = FEEDBACK_KINDS, seed: int = 0,
-             duration_s: float | None = None, progress: bool = False) -> StepResult:
+             duration_s: float | None = None, progress: bool = False,
+             controller: Controller | ControllerFactory | None = None) -> StepResult:
     """The paper's step and disturbance tests under each feedback.
 
     Parameters
@@ -215,17 +223,21 @@ def run_step(params: TestbedParams | None = None, feedbacks: tuple[str, ...] = F
         Seed of the sensor's noise (each case uses it).
     duration_s : float, optional
         Shorten every test to this many seconds (short mode; the paper's figures need the full length).
+    controller : Controller or factory, optional
+        The torque controller of every case (:class:`sim.run.Controller`: ``reset()``, ``step(observation)``;
+        reset before each case), or a factory ``(params, feedback) -> Controller`` called per case; by default
+        the paper's PI (:func:`paper_pi`). It observes ``tau_ref``, the feedback's torque (``tau_sensor`` or
+        ``tau_current_estimate``), ``q_motor`` and ``qd_motor``.
     """
     params = params or TestbedParams()
     for kind in feedbacks:
-        if kind not in FEEDBACK_KINDS:
-            raise ValueError(f"feedback = {kind!r}: valid values are {', '.join(FEEDBACK_KINDS)}")
+        check_feedback(kind)
     hold = STEP_HOLD_S if duration_s is None else duration_s
     cases = []
     for kind in feedbacks:
         for step in STEPS_NM:
-            cases.append(run_step_case(params, kind, step, seed, hold, progress))
-        cases.append(run_disturbance_case(params, kind, seed, duration_s, progress))
+            cases.append(run_step_case(params, kind, step, seed, hold, progress, controller))
+        cases.append(run_disturbance_case(params, kind, seed, duration_s, progress, controller))
     return StepResult(cases, seed)
 
 
@@ -245,7 +257,7 @@ def plot_step(result: StepResult, directory: Path) -> Path:
         twin = ax.twinx() if name == "disturbance" else None  # the hand's torque, on its own scale
         for c in (c for c in result.cases if c.name == name):
             log = c.log
-            ax.plot(log["time"], loadcell_torque_nm(log, result.seed), color=colours[c.feedback], lw=0.9,
+            ax.plot(log["time"], log["tau_loadcell"], color=colours[c.feedback], lw=0.9,
                     label=f"load cell, {c.feedback} fb (RMS error {c.error.rms_nm:.4f} N·m)")
             if twin is not None:
                 twin.plot(log["time"], log["tau_hub"], ":", color=colours[c.feedback], lw=1.0,

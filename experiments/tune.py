@@ -52,11 +52,19 @@ from pathlib import Path
 import numpy as np
 from scipy.optimize import minimize
 
-from controllers.pi import PAPER_KI_PER_S, PAPER_KP, PITorqueController
+from controllers.pi import FEEDBACK_KEYS, PAPER_KI_PER_S, PAPER_KP, PITorqueController
 from controllers.tracking import tracking_error
 from envs.torque_tracking import OBSERVATION_NAMES, TorqueTrackingEnv
-from experiments.common import (add_experiment_args, cli_parser, load_params_arg, positive_int, record_rerun,
-                                run_errors, short_run_banner, write_outputs)
+from experiments.common import (
+    add_experiment_args,
+    cli_parser,
+    load_params_arg,
+    positive_int,
+    record_rerun,
+    run_errors,
+    short_run_banner,
+    write_outputs,
+)
 from sim.figures import save_figure
 from sim.motor_torque import CurrentToTorqueMap
 from sim.params import TestbedParams
@@ -70,10 +78,6 @@ KI_RANGE_PER_S = (0.1, 1000.0)  # [1/s]
 KD_RANGE_NMS_PER_RAD = (0.0, 1.0)  # [N·m·s/rad]
 SIMPLEX_LOG_STEP = math.log(2.0)  # initial simplex: gains halved / doubled
 SIMPLEX_KD_STEP = 0.02  # [N·m·s/rad]
-FEEDBACK_OBSERVATION = {"sensor": OBSERVATION_NAMES.index("tau_sensor"),  # index into the env's observation
-                        "current": OBSERVATION_NAMES.index("tau_current_estimate")}
-REFERENCE_OBSERVATION = OBSERVATION_NAMES.index("tau_ref")
-VELOCITY_OBSERVATION = OBSERVATION_NAMES.index("qd_motor")
 
 
 @dataclass(frozen=True)
@@ -100,6 +104,12 @@ class Gains:
     def to_dict(self) -> dict:
         return {"kp": self.kp, "ki_per_s": self.ki_per_s, "kd_nms_per_rad": self.kd_nms_per_rad}
 
+    def controller(self, params: TestbedParams, feedback: str = "sensor") -> PITorqueController:
+        """The PI with these gains and velocity damping, closing on ``feedback`` at the driver's limit."""
+        return PITorqueController(output_limit_nm=CurrentToTorqueMap.from_params(params).command_limit_nm,
+                                  kp=self.kp, ki_per_s=self.ki_per_s, period_s=params.simulation.control_period_s,
+                                  measured=FEEDBACK_KEYS[feedback], velocity_damping_nms_per_rad=self.kd_nms_per_rad)
+
 
 PAPER_GAINS = Gains(PAPER_KP, PAPER_KI_PER_S, 0.0)
 
@@ -117,14 +127,12 @@ class Episode:
 def run_episode(env: TorqueTrackingEnv, gains: Gains, task: TuneTask, seed: int, feedback: str = "sensor") -> Episode:
     """The gains' controller on ``env`` for one episode of ``task``; inf RMS if the physics diverged."""
     obs, _ = env.reset(seed=seed, options=task.options)
-    limit = CurrentToTorqueMap.from_params(env.nominal_params).command_limit_nm
-    pi = PITorqueController(output_limit_nm=limit, kp=gains.kp, ki_per_s=gains.ki_per_s, period_s=env.dt)
-    i_meas, kd = FEEDBACK_OBSERVATION[feedback], gains.kd_nms_per_rad
+    controller = gains.controller(env.nominal_params, feedback)
     n = env.n_steps
     time, ref, out = np.empty(n), np.empty(n), np.empty(n)
     action = np.zeros(1)
     for k in range(n):
-        action[0] = pi.step(obs[REFERENCE_OBSERVATION], obs[i_meas]) - kd * obs[VELOCITY_OBSERVATION]
+        action[0] = controller.step(dict(zip(OBSERVATION_NAMES, obs.tolist(), strict=True)))
         obs, _, terminated, _, info = env.step(action)
         if terminated:
             return Episode(math.inf, time[:k], ref[:k], out[:k])
@@ -202,8 +210,8 @@ def tune(params: TestbedParams | None = None, feedback: str = "sensor", damping:
         M >= 1: candidates whose gains x M track any task worse than the paper's gains are inadmissible
         (1 switches the check off).
     """
-    if feedback not in FEEDBACK_OBSERVATION:
-        raise ValueError(f"feedback = {feedback!r}: valid values are {', '.join(FEEDBACK_OBSERVATION)}")
+    if feedback not in FEEDBACK_KEYS:
+        raise ValueError(f"feedback = {feedback!r}: valid values are {', '.join(FEEDBACK_KEYS)}")
     if max_evaluations < 1:
         raise ValueError(f"max_evaluations = {max_evaluations!r}: valid range [1, inf)")
     if not (math.isfinite(gain_margin) and gain_margin >= 1.0):
@@ -329,7 +337,7 @@ def plot_tune(result: TuneResult, directory: Path) -> Path:
 
 def main(argv: list[str] | None = None) -> None:
     parser = cli_parser(__doc__, __spec__.name)
-    parser.add_argument("--feedback", choices=tuple(FEEDBACK_OBSERVATION), default="sensor",
+    parser.add_argument("--feedback", choices=tuple(FEEDBACK_KEYS), default="sensor",
                         help="measured torque the PI closes on (default sensor)")
     parser.add_argument("--damping", action="store_true", help="also tune a velocity-damping gain K_d")
     parser.add_argument("--max-evaluations", type=positive_int, default=DEFAULT_MAX_EVALUATIONS, metavar="N",

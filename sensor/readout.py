@@ -20,6 +20,7 @@ from sensor.evaluation import calibrate
 from sensor.photoreflector import CHANNELS, PhotoReflectorArray
 from sensor.protocol import calibration_schedule, check_params, crosstalk_schedule, record
 from sim.params import TestbedParams
+from sim.runlog import STANDARD_UNITS, VOLTAGE_COLUMNS
 
 # The factory calibration's run seed: the noise of the calibration record, not of later runs.
 FACTORY_CALIBRATION_SEED = 0
@@ -68,7 +69,9 @@ def factory_calibration(params: TestbedParams | None = None, method: Literal["ls
 
 
 class TorqueSensorReadout:
-    """The photo-reflector sensor and its calibration, read once per control tick.
+    """The photo-reflector sensor and its calibration, read once per control tick: the measurement
+    ``tau_sensor`` [N·m] of a control loop (:class:`sim.run.Measurement`), with the eight channel voltages
+    ``v1`` ... ``v8`` [V] it was computed from as extra columns.
 
     Parameters
     ----------
@@ -101,7 +104,14 @@ class TorqueSensorReadout:
         """The eight channel voltages [V] of the last read, (8,) (NaN before the first)."""
         return np.array(self._voltages)
 
-    def read(self, twist_rad: float, temperature_c: float, tx_nm: float = 0.0, ty_nm: float = 0.0) -> float:
+    name, unit = "tau_sensor", "N·m"
+    extra_units = {name: STANDARD_UNITS[name] for name in VOLTAGE_COLUMNS}
+
+    def extra_values(self) -> list[float]:
+        """The eight channel voltages [V] of the last read."""
+        return self._voltages
+
+    def read_sample(self, twist_rad: float, temperature_c: float, tx_nm: float = 0.0, ty_nm: float = 0.0) -> float:
         """Sensor torque [N·m] for one sample of flexure twist [rad], board temperature [°C], moments [N·m].
 
         Eq. 10 by Horner per channel, summed in channel order from 0.0 then plus the offset: the order of
@@ -114,6 +124,6 @@ class TorqueSensorReadout:
             torque += ((c3 * vk + c2) * vk + c1) * vk
         return torque + self._offset
 
-    def read_plant(self, plant) -> float:
+    def read(self, plant) -> float:
         """Sensor torque [N·m] for the plant's current tick (its flexure twist and TMP117 reading)."""
-        return self.read(plant.flexure_angle_rad, plant.tmp117_temperature_c)
+        return self.read_sample(plant.flexure_angle_rad, plant.tmp117_temperature_c)

@@ -9,8 +9,8 @@ import mujoco
 import numpy as np
 
 from sim.params import TestbedParams
-from sim.plant import SIGNAL_UNITS, Plant, warn_mujoco_warnings
-from sim.run import signal_columns
+from sim.plant import Plant, warn_mujoco_warnings
+from sim.run import run_open_loop
 from sim.runlog import RunLog
 
 # Paper Sec. V: breakaway = smallest command at which the motor velocity first exceeds a small threshold
@@ -18,32 +18,6 @@ from sim.runlog import RunLog
 BREAKAWAY_SUSTAIN_S = 0.1
 BREAKAWAY_VELOCITY_THRESHOLD_RAD_S = 0.01  # output side; assumed: "a small threshold"
 BREAKAWAY_RAMP_NM_PER_S = 0.05  # slow enough that the 100 ms window adds only 0.005 N·m
-
-
-class _TickRecorder:
-    """The plant's signals (``sim.plant.SIGNAL_UNITS``) after every control tick of a measurement, kept only
-    when asked (``keep``); reading them does not change the plant."""
-
-    def __init__(self, plant: Plant, n_ticks: int, keep: bool) -> None:
-        self.plant, self.keep = plant, keep
-        self.times = np.empty(n_ticks if keep else 0)
-        self.rows = np.empty((len(self.times), len(SIGNAL_UNITS)))
-
-    def record(self, k: int) -> None:
-        """Store the signals after tick ``k`` (0-based)."""
-        if self.keep:
-            self.times[k] = self.plant.time_s
-            self.plant.read_signals(self.rows[k])
-
-    def log(self, n_ticks: int, meta: dict) -> RunLog | None:
-        """The first ``n_ticks`` as a run log (columns and units of ``SIGNAL_UNITS``), None if not kept."""
-        if not self.keep:
-            return None
-        plant = self.plant
-        return RunLog(signal_columns(self.rows[:n_ticks], self.times[:n_ticks].copy()),
-                      {"time": "s", **SIGNAL_UNITS},
-                      {"fixture": plant.fixture, "lever_length_m": plant.params.lever.length_m,
-                       "physics_timestep_s": plant.timestep_s, "substeps": plant.n_substeps, **meta})
 
 
 @dataclass(frozen=True)
@@ -71,21 +45,25 @@ def measure_breakaway(params: TestbedParams | None = None, *, sign: float = 1.0,
     sustain_ticks = round(BREAKAWAY_SUSTAIN_S / tick)
     max_torque = min(p.motor.peak_torque_nm, 4.0 * p.friction.breakaway_torque_nm)
     n = math.ceil(max_torque / ramp_nm_per_s / tick)
-    recorder = _TickRecorder(plant, n, keep_log)
-    moving_since = None
-    for k in range(n):
-        tau = sign * ramp_nm_per_s * (k + 1) * tick
-        plant.step(tau)
-        recorder.record(k)
-        if abs(plant.motor_velocity_rad_s) > BREAKAWAY_VELOCITY_THRESHOLD_RAD_S:
-            moving_since = k if moving_since is None else moving_since
-            if k - moving_since >= sustain_ticks:
-                log = recorder.log(k + 1, {"experiment": "breakaway ramp", "ramp_nm_per_s": sign * ramp_nm_per_s})
-                return Breakaway(abs(sign * ramp_nm_per_s * (moving_since + 1) * tick),
-                                 (moving_since + 1) * tick, ramp_nm_per_s, log)
-        else:
-            moving_since = None
-    raise RuntimeError(f"no breakaway below {max_torque:.3g} N·m: the gear never moved on the ramp")
+    ramp = sign * ramp_nm_per_s * np.arange(1, n + 1) * tick
+    moving_since: list[int] = []  # the tick the motor has been moving since (empty: at rest)
+    broke_away: list[int] = []  # that tick, once the motion has lasted sustain_ticks
+
+    def sustained(k: int, plant: Plant) -> bool:
+        if abs(plant.motor_velocity_rad_s) <= BREAKAWAY_VELOCITY_THRESHOLD_RAD_S:
+            moving_since.clear()
+            return False
+        moving_since[:] = moving_since or [k]
+        if k - moving_since[0] >= sustain_ticks:
+            broke_away.append(moving_since[0])
+        return bool(broke_away)
+
+    log = run_open_loop(plant, ramp, progress=False, stop=sustained,
+                        meta={"experiment": "breakaway ramp", "ramp_nm_per_s": sign * ramp_nm_per_s})
+    if not broke_away:
+        raise RuntimeError(f"no breakaway below {max_torque:.3g} N·m: the gear never moved on the ramp")
+    start = broke_away[0]
+    return Breakaway(abs(ramp[start]), (start + 1) * tick, ramp_nm_per_s, log if keep_log else None)
 
 
 @dataclass(frozen=True)
@@ -114,21 +92,16 @@ def measure_backlash(params: TestbedParams | None = None, *, amplitude_nm: float
     t = np.arange(1, round(1.5 * period_s / tick) + 1) * tick
     phase = (t / period_s) % 1.0
     triangle = amplitude_nm * (1.0 - 4.0 * np.abs(phase - 0.5))  # -A at t=0, +A at T/2
-    q_motor, tau_lc = np.empty(len(t)), np.empty(len(t))
-    recorder = _TickRecorder(plant, len(t), keep_log)
-    for k, tau in enumerate(triangle):
-        plant.step(tau)
-        recorder.record(k)
-        q_motor[k], tau_lc[k] = plant.motor_angle_rad, plant.loadcell_torque_nm
+    log = run_open_loop(plant, triangle, progress=False,
+                        meta={"experiment": "backlash reversal", "amplitude_nm": amplitude_nm, "period_s": period_s})
+    q_motor, tau_lc = log["q_motor"], log["force_loadcell"] * plant.params.lever.length_m
     settle = t > 0.25 * period_s  # skip the start-up from rest
     fits = []
     for side in (1.0, -1.0):
         sel = settle & (side * tau_lc > 0.3 * amplitude_nm) & (side * tau_lc < 0.9 * amplitude_nm)
         fits.append(np.polyfit(tau_lc[sel], q_motor[sel], 1))
     (slope_pos, icpt_pos), (slope_neg, icpt_neg) = fits
-    log = recorder.log(len(t), {"experiment": "backlash reversal", "amplitude_nm": amplitude_nm,
-                                "period_s": period_s})
-    return BacklashMeasurement(icpt_pos - icpt_neg, 0.5 * (slope_pos + slope_neg), log)
+    return BacklashMeasurement(icpt_pos - icpt_neg, 0.5 * (slope_pos + slope_neg), log if keep_log else None)
 
 
 @dataclass(frozen=True)

@@ -12,7 +12,7 @@ def _virtual_response(c: AdmittanceController, tau: float, ticks: int) -> tuple[
     theta, omega = np.empty(ticks), np.empty(ticks)
     for k in range(ticks):
         theta[k], omega[k] = c.reference_angle_rad, c.reference_velocity_rad_s
-        c.step(tau, 0.0, 0.0)
+        c.update(tau, 0.0, 0.0)
     return theta, omega
 
 
@@ -53,7 +53,7 @@ def test_command_is_the_pd_law_on_the_reference_error():
     """τ_cmd = K_p (θ_r - θ) + K_v (ω_r - ω) (Eq. 34) with the state before the update."""
     c = AdmittanceController(angle_gain_nm_per_rad=30.0, velocity_gain_nms_per_rad=0.9)
     c.reference_angle_rad, c.reference_velocity_rad_s = 0.2, 0.5
-    assert c.step(0.0, 0.15, 0.1) == pytest.approx(30.0 * 0.05 + 0.9 * 0.4)
+    assert c.update(0.0, 0.15, 0.1) == pytest.approx(30.0 * 0.05 + 0.9 * 0.4)
 
 
 def test_unstable_discretisation_is_refused_naming_the_field():

@@ -21,7 +21,7 @@ def test_open_loop_error_ramp_matches_the_discrete_pi_law():
     """A constant error e gives u_k = Kp e + k T_s Ki e exactly (no saturation)."""
     c = PITorqueController(output_limit_nm=100.0, feedforward_gain=0.0)
     e = 0.3
-    u = [c.step(e, 0.0) for _ in range(50)]
+    u = [c.update(e, 0.0) for _ in range(50)]
     expected = PAPER_KP * e + np.arange(50) * 1e-3 * PAPER_KI_PER_S * e
     np.testing.assert_allclose(u, expected, rtol=0, atol=1e-12)
 
@@ -33,7 +33,7 @@ def test_closed_loop_on_an_ideal_unit_gain_plant_follows_the_closed_form():
     c = PITorqueController(output_limit_nm=100.0, feedforward_gain=0.0)
     r, y, ys = 1.0, 0.0, []
     for _ in range(3000):
-        u = c.step(r, y)
+        u = c.update(r, y)
         y = u
         ys.append(y)
     # y_{k+1} = kp (r - y_k) + i_k ;  i_{k+1} = i_k + ts ki (r - y_k)
@@ -55,7 +55,7 @@ def test_feedforward_loop_on_a_lossy_plant_follows_the_closed_form():
     c = PITorqueController(output_limit_nm=100.0)
     r, y, ys = 0.2, 0.0, []
     for _ in range(4000):
-        y = gain * c.step(r, y)
+        y = gain * c.update(r, y)
         ys.append(y)
     # y_{k+1} = g (r + kp (r - y_k) + i_k) ;  i_{k+1} = i_k + ts ki (r - y_k)
     a = np.array([[-gain * kp, gain], [-ts * ki, 1.0]])
@@ -78,7 +78,7 @@ def test_antiwindup_keeps_the_integrator_bounded_under_saturation(limit, error, 
     balances Ki e, |i| <= u_max + Kp |e| + Ki |e| / K_aw, instead of growing as Ki e t."""
     c = PITorqueController(output_limit_nm=limit, antiwindup_per_s=kaw, feedforward_gain=0.0)
     for _ in range(ticks):
-        u = c.step(error, 0.0)
+        u = c.update(error, 0.0)
         assert abs(u) <= limit
     bound = limit + PAPER_KP * abs(error) + PAPER_KI_PER_S * abs(error) / kaw
     assert abs(c.integrator_nm) <= bound + 1e-9
@@ -88,7 +88,7 @@ def test_without_antiwindup_the_integrator_winds_up():
     """The control case: with K_aw = 0 the integrator grows as Ki e t under saturation."""
     c = PITorqueController(output_limit_nm=0.1, antiwindup_per_s=0.0, feedforward_gain=0.0)
     for _ in range(1000):
-        c.step(5.0, 0.0)
+        c.update(5.0, 0.0)
     assert c.integrator_nm == pytest.approx(PAPER_KI_PER_S * 5.0 * 1.0, rel=1e-9)
 
 
@@ -115,9 +115,9 @@ def test_feedforward_above_one_is_accepted_for_known_gear_losses():
 @pytest.mark.parametrize("ref,measured", [(0.1, float("nan")), (float("inf"), 0.0)])
 def test_a_non_finite_input_is_refused_and_leaves_the_integrator_untouched(ref, measured):
     c = PITorqueController(output_limit_nm=18.0)
-    c.step(0.1, 0.05)
+    c.update(0.1, 0.05)
     before = c.integrator_nm
     with pytest.raises(ValueError, match="must be finite"):
-        c.step(ref, measured)
+        c.update(ref, measured)
     assert c.integrator_nm == before
-    assert math.isfinite(c.step(0.1, 0.1))
+    assert math.isfinite(c.update(0.1, 0.1))

@@ -15,14 +15,15 @@ from gymnasium.utils.env_checker import check_env
 
 import torquebed
 from controllers.feedback import make_feedback
-from controllers.loop import run_torque_loop
 from controllers.pi import PITorqueController
 from envs import ENV_ID, register_envs
 from envs.randomization import RANDOMIZED_FIELDS
 from envs.torque_tracking import OBSERVATION_NAMES, TorqueTrackingEnv
 from sensor.readout import factory_calibration
+from sim.measurements import MotorEncoder, MotorVelocity
 from sim.params import TestbedParams, field_range
 from sim.plant import Plant
+from sim.run import run_loop
 
 ROOT = Path(__file__).resolve().parents[1]
 SHORT_S = 0.05  # [s] 50-step episodes
@@ -91,7 +92,7 @@ def test_a_fresh_interpreter_makes_the_env_after_import_torquebed(code):
 
 def test_the_simulation_packages_register_nothing_and_load_no_gymnasium():
     """``import sim`` and the packages below the environments leave Gymnasium unloaded and the id unregistered."""
-    assert _fresh("import sys; import sim, sim.params, sim.plant, models, sensor.readout, controllers.loop; "
+    assert _fresh("import sys; import sim, sim.params, sim.plant, models, sensor.readout, sim.run, controllers.feedback; "
                   "print('gymnasium' in sys.modules)") == "False"
     assert _fresh(f"import gymnasium, sim, sim.plant; print('{ENV_ID}' in gymnasium.registry)") == "False"
 
@@ -260,21 +261,21 @@ def test_reward_is_zero_at_rest_on_a_zero_reference_without_noise():
 
 
 def test_one_step_is_one_tick_of_the_experiments_torque_loop():
-    """A PI on the env's sensor observation reproduces run_torque_loop's load-cell torque exactly (noise off)."""
+    """A PI on the env's sensor observation reproduces the experiments' loop (sim.run.run_loop): its load-cell torque exactly (noise off)."""
     env = make(feedback_noise=False, episode_duration_s=0.3)
     obs, _ = env.reset(seed=0, options={"task": "step", "amplitude_nm": 0.1})
     pi = PITorqueController(output_limit_nm=command_limit_nm(TestbedParams().motor))
     loadcell = []
     for _ in range(env.n_steps):
-        obs, _, _, _, info = env.step(np.array([pi.step(obs[0], obs[1])]))
+        obs, _, _, _, info = env.step(np.array([pi.update(obs[0], obs[1])]))
         loadcell.append(info["loadcell_torque_nm"])
     p = TestbedParams()
     plant = Plant(p, "locked")
     plant.reset(backlash_side=1)
     feedback = make_feedback("sensor", p.replace(photoreflector={"noise_min_v": 0.0, "noise_max_v": 0.0}), 0,
                              factory_calibration(p))
-    log = run_torque_loop(plant, PITorqueController(output_limit_nm=command_limit_nm(p.motor)), feedback,
-                          env.reference.values_nm, meta={})
+    log = run_loop(plant, PITorqueController(output_limit_nm=command_limit_nm(p.motor)), env.n_steps,
+                   measurements=[feedback, MotorEncoder(), MotorVelocity()], tau_ref_nm=env.reference.values_nm)
     # same trajectory; only the last bit of force x length vs the torque differs
     np.testing.assert_allclose(np.array(loadcell), log["force_loadcell"] * p.lever.length_m, rtol=1e-12, atol=1e-15)
     assert np.abs(log["force_loadcell"]).max() * p.lever.length_m > 0.05  # the step was followed

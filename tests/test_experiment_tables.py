@@ -2,12 +2,10 @@
 
 import argparse
 
-import numpy as np
 import pytest
 
-from experiments.common import format_rows, loadcell_torque_nm, paper_row, run_seconds, seed_arg
+from experiments.common import format_rows, paper_row, run_seconds, seed_arg
 from experiments.paper import ACTUATION_LEVEL, actuation
-from sim.runlog import RunLog
 
 
 def test_format_rows_marks_the_ratios_outside_the_band_and_only_those():
@@ -46,20 +44,3 @@ def test_seed_arg_takes_non_negative_integers_only():
             seed_arg(text)
 
 
-def _loadcell_log(meta):
-    return RunLog({"time": np.arange(4) * 1e-3, "force_loadcell": np.full(4, 2.0)},
-                  {"time": "s", "force_loadcell": "N"}, {"fixture": "locked", "lever_length_m": 0.1, **meta})
-
-
-def test_loadcell_reading_uses_the_logged_noise_and_names_it_when_missing():
-    """The load cell's noise std comes from the log's metadata (the run's loadcell.reading_noise_n); a log
-    without it gives the true force unseeded, a clear error seeded, and the noise passed explicitly."""
-    noisy = _loadcell_log({"loadcell_reading_noise_n": 0.025})
-    assert np.all(loadcell_torque_nm(noisy) == 0.2)
-    assert np.array_equal(loadcell_torque_nm(noisy, seed=3), loadcell_torque_nm(noisy, seed=3, noise_n=0.025))
-    assert not np.array_equal(loadcell_torque_nm(noisy, seed=3), loadcell_torque_nm(noisy))
-    old = _loadcell_log({})
-    assert np.all(loadcell_torque_nm(old) == 0.2)
-    with pytest.raises(ValueError, match="loadcell_reading_noise_n.*pass noise_n"):
-        loadcell_torque_nm(old, seed=3)
-    assert np.array_equal(loadcell_torque_nm(old, seed=3, noise_n=0.025), loadcell_torque_nm(noisy, seed=3))

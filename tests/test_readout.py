@@ -25,18 +25,18 @@ def test_readout_returns_the_static_torque_within_the_calibration_bound():
     k_t = derive(params).flexure_stiffness_nm_per_rad
     readout = TorqueSensorReadout(params, seed=5)
     for tau in (-20.0, -1.0, 0.0, 2.0, 15.0):
-        readings = [readout.read(tau / k_t, params.photoreflector.reference_temperature_c) for _ in range(200)]
+        readings = [readout.read_sample(tau / k_t, params.photoreflector.reference_temperature_c) for _ in range(200)]
         assert np.mean(readings) == pytest.approx(tau, abs=factory_calibration(params).e_max_nm)
 
 
 def test_same_seed_gives_the_same_readings_and_reset_restarts_them():
     """Two readouts with one seed agree; reset() replays the sequence."""
     a, b = TorqueSensorReadout(seed=7), TorqueSensorReadout(seed=7)
-    first = [a.read(1e-3, 25.0) for _ in range(20)]
-    assert first == [b.read(1e-3, 25.0) for _ in range(20)]
+    first = [a.read_sample(1e-3, 25.0) for _ in range(20)]
+    assert first == [b.read_sample(1e-3, 25.0) for _ in range(20)]
     a.reset()
-    assert first == [a.read(1e-3, 25.0) for _ in range(20)]
-    assert first != [TorqueSensorReadout(seed=8).read(1e-3, 25.0) for _ in range(20)]
+    assert first == [a.read_sample(1e-3, 25.0) for _ in range(20)]
+    assert first != [TorqueSensorReadout(seed=8).read_sample(1e-3, 25.0) for _ in range(20)]
 
 
 def test_factory_calibration_rejects_an_unknown_method():
@@ -74,6 +74,6 @@ def test_readout_torque_is_the_calibrations_prediction_of_its_voltages():
     k_t = derive(params).flexure_stiffness_nm_per_rad
     readout = TorqueSensorReadout(params, seed=2)
     for tau in (-18.0, -0.3, 0.0, 0.05, 7.0, 24.0):
-        torque = readout.read(tau / k_t, 27.5)
+        torque = readout.read_sample(tau / k_t, 27.5)
         assert torque == pytest.approx(readout.calibration.predict(readout.voltages_v[None, :])[0], rel=1e-12,
                                        abs=1e-12)

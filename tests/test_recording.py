@@ -8,9 +8,8 @@ import numpy as np
 import pytest
 import rerun as rr
 
-from controllers.feedback import make_feedback
-from controllers.loop import run_torque_loop
 from controllers.pi import PITorqueController
+from controllers.tracking import run_tracking
 from experiments.common import add_experiment_args, record_log, record_rerun
 from sim.params import TestbedParams
 from sim.plant import Plant
@@ -27,7 +26,7 @@ def sensor_log():
     plant = Plant(p, "locked")
     plant.reset(backlash_side=1)
     ref = np.r_[np.zeros(50), np.full(N_TICKS - 50, 0.1)]
-    return run_torque_loop(plant, PITorqueController(18.0), make_feedback("sensor", p, 0), ref, meta={})
+    return run_tracking(p, plant, PITorqueController(18.0), "sensor", 0, ref)
 
 
 def read_back(path) -> tuple[Counter, set]:
@@ -266,8 +265,8 @@ def measured_locked(tmp_path_factory):
 
 
 def _measured(experiment, directory):
-    from sim.discrepancy.rig import rig_to_toml
     from experiments.synthetic_logs import hidden_effect_log
+    from sim.discrepancy.rig import rig_to_toml
     from sim.logio import write_log
 
     log, rig, _ = hidden_effect_log(experiment, [], seed=1, duration_s=3.0)

@@ -25,7 +25,11 @@ from pathlib import Path
 
 import numpy as np
 
-from controllers.admittance import PAPER_DESIRED_DAMPING_NMS_PER_RAD, PAPER_DESIRED_INERTIA_KGM2, AdmittanceController
+from controllers.admittance import (
+    PAPER_DESIRED_DAMPING_NMS_PER_RAD,
+    PAPER_DESIRED_INERTIA_KGM2,
+    AdmittanceController,
+)
 from controllers.feedback import ControllerFactory, build_controller, loop_measurements
 from experiments.common import (
     add_experiment_args,
@@ -147,9 +151,16 @@ class AdmittanceResult:
         slow, fast = self.pushes
         return fast.peak_hand_torque_nm > 3 * slow.peak_hand_torque_nm and fast.max_lag_rad > 3 * slow.max_lag_rad
 
+    def plot(self, directory: Path) -> list[Path]:
+        """The pushes' torque, angle and velocity, written to ``directory`` (paths)."""
+        return [plot_admittance(self, directory)]
+
+    def rows(self) -> list[dict]:
+        """None: the paper gives no admittance figures (Fig. 13 is qualitative; see the behaviours)."""
+        return []
+
     def to_dict(self) -> dict:
-        # "rows": the paper gives no admittance figures (Fig. 13 is qualitative); kept for the common JSON shape
-        return {"rows": [], "seed": self.seed, "pushes": [p.to_dict() for p in self.pushes],
+        return {"rows": self.rows(), "seed": self.seed, "pushes": [p.to_dict() for p in self.pushes],
                 "follows_slow": self.follows_slow, "resists_fast": self.resists_fast}
 
 
@@ -269,7 +280,7 @@ def main(argv: list[str] | None = None) -> None:
         result = run_admittance(params, args.seed, args.duration, progress=True)
     short_run_banner(args)
     print(format_result(result))
-    write_outputs(args, result.to_dict(), lambda directory: plot_admittance(result, directory))
+    write_outputs(args, result.to_dict(), result.plot)
     record_rerun(args, result.logs(), params)
 
 

@@ -12,15 +12,27 @@ prints every figure beside the paper's. Figures: ``calibration_channels.png`` (p
 from __future__ import annotations
 
 import sys
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from experiments.common import (TARGET_RATIO, add_output_args, add_params_arg, add_rerun_args, cli_parser, format_rows,
-                                load_params_arg, paper_row, record_log, record_rerun, run_errors, seed_arg,
-                                write_outputs)
+from experiments.common import (
+    TARGET_RATIO,
+    add_output_args,
+    add_params_arg,
+    add_rerun_args,
+    cli_parser,
+    format_rows,
+    load_params_arg,
+    paper_row,
+    record_log,
+    record_rerun,
+    run_errors,
+    seed_arg,
+    write_outputs,
+)
 from sensor import metrics
 from sensor.calibration import FS_NM
 from sensor.evaluation import SensorEvaluation, evaluate_sensor, measured_cycles
@@ -54,23 +66,27 @@ def comparison_rows(figures: dict[str, tuple[float, str]],
 
 @dataclass(frozen=True)
 class CalibrationExperiment:
-    """The evaluation, its comparison rows and the figures written (paths)."""
+    """The evaluation and its comparison rows (:meth:`rows`); :meth:`plot` draws its figures."""
 
     evaluation: SensorEvaluation
-    rows: list[dict[str, Any]]
-    figures: list[Path] = field(default_factory=list)
+    comparison: list[dict[str, Any]]
+
+    def rows(self) -> list[dict[str, Any]]:
+        """Every figure of Tables III-IV and the resolution comparison beside the paper's."""
+        return self.comparison
 
     def to_dict(self) -> dict[str, Any]:
-        return {"rows": self.rows, "evaluation": self.evaluation.to_dict(),
-                "figures": [str(p) for p in self.figures]}
+        return {"rows": self.rows(), "evaluation": self.evaluation.to_dict()}
+
+    def plot(self, directory: Path) -> list[Path]:
+        """Figs. 6-8 like the paper's, written to ``directory`` (paths)."""
+        return plot_calibration(self.evaluation, directory)
 
 
-def run_calibration(params: TestbedParams | None = None, seed: int = 0,
-                    plot_dir: Path | None = None) -> CalibrationExperiment:
-    """Calibrate and evaluate the default (or given) sensor unit; figures to ``plot_dir`` if given."""
+def run_calibration(params: TestbedParams | None = None, seed: int = 0) -> CalibrationExperiment:
+    """Calibrate and evaluate the default (or given) sensor unit."""
     evaluation = evaluate_sensor(params or TestbedParams(), seed)
-    figures = plot_calibration(evaluation, plot_dir) if plot_dir is not None else []
-    return CalibrationExperiment(evaluation, comparison_rows(evaluation.figures, PAPER_FIGURES), figures)
+    return CalibrationExperiment(evaluation, comparison_rows(evaluation.figures, PAPER_FIGURES))
 
 
 # Paper Sec. IV-B: the peaks of Fig. 7(c) and (d), the deviation curves behind Table III's 0.111 and 0.139 % FS.
@@ -321,15 +337,13 @@ def main(argv: list[str] | None = None) -> int:
     params = load_params_arg(parser, args)
     print("calibrating on the simulated rig (T_z loading, T_x/T_y moments) and evaluating ...", file=sys.stderr)
     with run_errors(parser):
-        result = run_calibration(params, args.seed, args.plot)
-    print(format_rows("Sensor calibration and evaluation (Tables III-IV, the resolution comparison)", result.rows,
+        result = run_calibration(params, args.seed)
+    print(format_rows("Sensor calibration and evaluation (Tables III-IV, the resolution comparison)", result.rows(),
                       band=TARGET_RATIO))
     sel = result.evaluation.gamma_selection
     print(f"\nQP: gamma = {sel.gamma:g} chosen by RMSE^2 + {sel.lambda_weight:g} Var(quiet); "
           f"{result.evaluation.qp.diagnostics.n_active_constraints} active error bounds")
-    write_outputs(args, {"rows": result.rows, **{k: v for k, v in result.to_dict().items() if k != "rows"}})
-    for p in result.figures:
-        print(f"figure: {p}")
+    write_outputs(args, result.to_dict(), result.plot)
     ev = result.evaluation
     records = {"calibration": ev.calibration_record, "evaluation": ev.evaluation_record,
                "no load": ev.resolution_record}

@@ -141,6 +141,8 @@ def _jsonable(x: Any) -> Any:
         return float(x) if math.isfinite(x) else None
     if isinstance(x, np.integer):
         return int(x)
+    if isinstance(x, np.bool_):
+        return bool(x)
     return x
 
 

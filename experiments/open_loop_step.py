@@ -16,8 +16,17 @@ from pathlib import Path
 
 import numpy as np
 
-from experiments.common import (add_output_args, add_params_arg, add_rerun_args, cli_parser, load_params_arg,
-                                record_rerun, run_seconds, write_outputs)
+from experiments.common import (
+    add_output_args,
+    add_params_arg,
+    add_rerun_args,
+    cli_parser,
+    load_params_arg,
+    record_rerun,
+    run_seconds,
+    write_outputs,
+)
+from experiments.step import PAPER_REACHED_FRACTION
 from sim.figures import save_figure
 from sim.motor_torque import CurrentToTorqueMap
 from sim.params import TestbedParams
@@ -26,7 +35,6 @@ from sim.protocols import STEPS_NM
 from sim.run import run_open_loop
 from sim.runlog import RunLog
 
-PAPER_REACHED_FRACTION = {0.05: 0.30, 0.1: 0.40, 0.2: 0.65}  # paper Sec. V-A, current feedback, mean values
 SETTLED_FRACTION = 0.5  # the mean is taken over the second half of each step
 
 

@@ -16,14 +16,23 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from experiments.admittance import make_controller, plot_admittance, run_admittance
-from experiments.calibration import run_calibration
-from experiments.common import (SHORTEST_FULL_TEST_S, TARGET_RATIO, add_experiment_args, cli_parser, format_rows,
-                                load_params_arg, outside_band, paper_row, record_rerun, run_errors, short_run_banner,
-                                write_outputs)
-from experiments.sinusoid import plot_sinusoid, run_sinusoid
-from experiments.step import plot_step, run_step
-from experiments.thermal import run_thermal
+from experiments.admittance import make_controller
+from experiments.common import (
+    SHORTEST_FULL_TEST_S,
+    TARGET_RATIO,
+    add_experiment_args,
+    cli_parser,
+    format_rows,
+    load_params_arg,
+    outside_band,
+    paper_row,
+    record_rerun,
+    run_errors,
+    short_run_banner,
+    write_outputs,
+)
+from experiments.registry import EXPERIMENTS
+from experiments.step import PAPER_REACHED_FRACTION
 from sim.characterize import measure_breakaway
 from sim.params import TestbedParams
 
@@ -33,8 +42,6 @@ ONE_SIDED_SHARE = 0.8  # [-] >= 80 % of the output's impulse on one side of zero
 # current-feedback step fraction (30 %, Sec. V-A): a lower output is a gear that never broke free, and the sign
 # share of a stuck output is its noise and offset, not one- or two-sided actuation.
 ACTUATION_LEVEL = 0.25
-# The sensor's experiments, run first: name shown in the progress -> runner.
-SENSOR_EXPERIMENTS = {"experiments.calibration": run_calibration, "experiments.thermal": run_thermal}
 
 
 @dataclass(frozen=True)
@@ -70,18 +77,6 @@ class PaperResult:
                 "figures": [str(p) for p in self.figures]}
 
 
-def _sensor_experiments(params: TestbedParams, seed: int, plot_dir: Path | None,
-                        progress: bool) -> tuple[list[dict], list[Path]]:
-    rows, figures = [], []
-    for name, run in SENSOR_EXPERIMENTS.items():
-        if progress:
-            print(f"{name} ...", file=sys.stderr, flush=True)
-        result = run(params, seed, plot_dir=plot_dir)
-        rows += result.rows
-        figures += [Path(p) for p in result.figures]
-    return rows, figures
-
-
 def actuation(positive_share: float, output_level: float) -> str:
     """'one-sided', 'two-sided' or 'none' (a stuck output) from the share of the output's impulse that is
     positive and mean |output| / mean |reference| (``experiments.sinusoid``)."""
@@ -96,9 +91,10 @@ def _behaviours(step, sinusoid, admittance, breakaway_nm: float) -> list[Behavio
                  if c.name.startswith("step") and c.feedback == "current"}
     if fractions:
         text = ", ".join(f"{100 * f:.0f} %" for f in fractions.values())
-        out.append(Behaviour("current feedback reaches ~30, 40, 65 % of the 0.05, 0.1, 0.2 N·m steps",
-                             f"{text}", all(0.5 < f / p < 1.5 for f, p in zip(
-                                 fractions.values(), (0.30, 0.40, 0.65), strict=True))))
+        paper = ", ".join(f"{100 * PAPER_REACHED_FRACTION[s]:.0f}" for s in fractions)
+        steps = ", ".join(f"{s:g}" for s in fractions)
+        out.append(Behaviour(f"current feedback reaches ~{paper} % of the {steps} N·m steps", f"{text}",
+                             all(0.5 < f / PAPER_REACHED_FRACTION[s] < 1.5 for s, f in fractions.items())))
     out.append(Behaviour("gear stiction ≈ 0.13 N·m (smallest command giving > 100 ms of motion on a ramp)",
                          f"{breakaway_nm:.3f} N·m", abs(breakaway_nm / PAPER_BREAKAWAY_NM - 1) < 0.2))
     for c in sinusoid.cases:
@@ -138,18 +134,19 @@ def run_paper(params: TestbedParams | None = None, seed: int = 0, duration_s: fl
               plot_dir: Path | None = None, progress: bool = False) -> PaperResult:
     """Run every experiment; rows of every paper figure beside the simulated one, and the behaviours."""
     params = params or TestbedParams()
-    rows, figures = _sensor_experiments(params, seed, plot_dir, progress)
-    step = run_step(params, seed=seed, duration_s=duration_s, progress=progress)
-    sinusoid = run_sinusoid(params, seed=seed, duration_s=duration_s, progress=progress)
-    admittance = run_admittance(params, seed, duration_s, progress)
+    results = {}
+    for name, experiment in EXPERIMENTS.items():
+        if progress:
+            print(f"experiments.{name} ...", file=sys.stderr, flush=True)
+        results[name] = experiment.run(params, seed, duration_s if experiment.shortens else None,
+                                       progress=progress)
     breakaway = measure_breakaway(params).torque_nm
-    rows += step.rows() + sinusoid.rows()
+    rows = [row for result in results.values() for row in result.rows()]
     rows.append(paper_row("V text", "gear breakaway (stiction) torque", "N·m", PAPER_BREAKAWAY_NM, breakaway))
-    if plot_dir is not None:
-        figures += [plot_step(step, plot_dir), plot_sinusoid(sinusoid, plot_dir),
-                    plot_admittance(admittance, plot_dir)]
-    logs = {**step.logs(), **sinusoid.logs(), **admittance.logs()}
-    return PaperResult(rows, _behaviours(step, sinusoid, admittance, breakaway), figures, logs, seed, duration_s)
+    figures = [path for result in results.values() for path in result.plot(plot_dir)] if plot_dir is not None else []
+    logs = {name: log for result in results.values() if hasattr(result, "logs") for name, log in result.logs().items()}
+    behaviours = _behaviours(results["step"], results["sinusoid"], results["admittance"], breakaway)
+    return PaperResult(rows, behaviours, figures, logs, seed, duration_s)
 
 
 def _cell(text: str) -> str:

@@ -28,7 +28,12 @@ from pathlib import Path
 
 import numpy as np
 
-from controllers.feedback import FEEDBACK_KINDS, ControllerFactory, build_controller, check_feedback
+from controllers.feedback import (
+    FEEDBACK_KINDS,
+    ControllerFactory,
+    build_controller,
+    check_feedback,
+)
 from controllers.pi import paper_pi
 from controllers.tracking import TrackingError, run_tracking, tracking_error
 from experiments.common import (
@@ -102,6 +107,10 @@ class SinusoidResult:
             out.append(paper_row("VII", f"{label}: RMS error", "N·m", c.paper_rms_nm, c.error.rms_nm))
             out.append(paper_row("VII", f"{label}: peak error", "N·m", c.paper_peak_nm, c.error.peak_nm))
         return out
+
+    def plot(self, directory: Path) -> list[Path]:
+        """Fig. 12 like the paper's, written to ``directory`` (paths)."""
+        return [plot_sinusoid(self, directory)]
 
     def to_dict(self) -> dict:
         return {"seed": self.seed, "cases": [c.to_dict() for c in self.cases], "rows": self.rows()}
@@ -201,7 +210,7 @@ def main(argv: list[str] | None = None) -> None:
     for c in result.cases:
         print(f"  {c.waveform.name}, {c.feedback}: positive share {c.positive_share:.2f}, "
               f"level {c.output_level:.2f}")
-    write_outputs(args, result.to_dict(), lambda directory: plot_sinusoid(result, directory))
+    write_outputs(args, result.to_dict(), result.plot)
     record_rerun(args, result.logs(), params)
 
 

@@ -33,7 +33,12 @@ from pathlib import Path
 
 import numpy as np
 
-from controllers.feedback import FEEDBACK_KINDS, ControllerFactory, build_controller, check_feedback
+from controllers.feedback import (
+    FEEDBACK_KINDS,
+    ControllerFactory,
+    build_controller,
+    check_feedback,
+)
 from controllers.pi import paper_pi
 from controllers.tracking import TrackingError, run_tracking, tracking_error
 from experiments.common import (
@@ -139,6 +144,10 @@ class StepResult:
             if c.name == "disturbance":
                 out.append(_disturbance_row(c, label))
         return out
+
+    def plot(self, directory: Path) -> list[Path]:
+        """Fig. 11 like the paper's, written to ``directory`` (paths)."""
+        return [plot_step(self, directory)]
 
     def to_dict(self) -> dict:
         return {"seed": self.seed, "cases": [c.to_dict() for c in self.cases], "rows": self.rows()}
@@ -298,7 +307,7 @@ def main(argv: list[str] | None = None) -> None:
     short_run_banner(args)
     print(format_rows("Step and disturbance tests, locked lever: load-cell torque vs reference (Table VI)",
                       result.rows()))
-    write_outputs(args, result.to_dict(), lambda directory: plot_step(result, directory))
+    write_outputs(args, result.to_dict(), result.plot)
     record_rerun(args, result.logs(), params)
 
 

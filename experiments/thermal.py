@@ -24,8 +24,20 @@ from typing import Any
 import numpy as np
 
 from experiments.calibration import comparison_rows, paper_value
-from experiments.common import (TARGET_RATIO, add_output_args, add_params_arg, add_rerun_args, cli_parser, format_rows,
-                                load_params_arg, record_log, record_rerun, run_errors, seed_arg, write_outputs)
+from experiments.common import (
+    TARGET_RATIO,
+    add_output_args,
+    add_params_arg,
+    add_rerun_args,
+    cli_parser,
+    format_rows,
+    load_params_arg,
+    record_log,
+    record_rerun,
+    run_errors,
+    seed_arg,
+    write_outputs,
+)
 from sensor.calibration import FS_NM
 from sensor.chamber import TemperatureRecord, chamber_run, drift_run
 from sensor.drift_fit import DriftFit, DriftModelComparison, compare_drift_models
@@ -55,14 +67,22 @@ class ThermalExperiment:
     models: DriftModelComparison
     drift_tests: dict[float, TemperatureRecord] = field(repr=False)
     figures_by_name: dict[str, tuple[float | None, str]]
-    rows: list[dict[str, Any]]
+    comparison: list[dict[str, Any]]
     compensation_model: str  # the drift model the compensation uses: "rational" (Eq. 20) unless rejected
-    figures: list[Path] = field(default_factory=list)
+    reference_c: float  # [°C] the calibration temperature the compensation refers to
+
+    def rows(self) -> list[dict[str, Any]]:
+        """Every figure of Table V and Sec. IV-C beside the paper's."""
+        return self.comparison
 
     def to_dict(self) -> dict[str, Any]:
-        return {"rows": self.rows, "drift_models": self.models.to_dict(), "compensation_model": self.compensation_model,
-                "figures_by_name": {k: {"value": v, "unit": u} for k, (v, u) in self.figures_by_name.items()},
-                "figures": [str(p) for p in self.figures]}
+        return {"rows": self.rows(), "drift_models": self.models.to_dict(),
+                "compensation_model": self.compensation_model,
+                "figures_by_name": {k: {"value": v, "unit": u} for k, (v, u) in self.figures_by_name.items()}}
+
+    def plot(self, directory: Path) -> list[Path]:
+        """Fig. 9(b)-(d) like the paper's, written to ``directory`` (paths)."""
+        return plot_thermal(self, self.reference_c, directory)
 
 
 def compensate(record: TemperatureRecord, fit: DriftFit, reference_c: float) -> np.ndarray:
@@ -70,7 +90,7 @@ def compensate(record: TemperatureRecord, fit: DriftFit, reference_c: float) -> 
     return record.tau_sensor_nm - (fit.predict(record.tmp117_c) - fit.predict(np.array([reference_c]))[0])
 
 
-def run_thermal(params: TestbedParams | None = None, seed: int = 0, plot_dir: Path | None = None) -> ThermalExperiment:
+def run_thermal(params: TestbedParams | None = None, seed: int = 0) -> ThermalExperiment:
     """Chamber protocol, drift fits and the one-hour tests with the factory (QP) calibration."""
     params = params or TestbedParams()
     calibration = factory_calibration(params)
@@ -99,11 +119,8 @@ def run_thermal(params: TestbedParams | None = None, seed: int = 0, plot_dir: Pa
     grid = np.linspace(t_lo, max(t_hi, t_lo + 1.0), 200)
     slope = np.max(np.abs(np.gradient(drift_model.predict(grid), grid)))
     figures["drift_per_kelvin_pct_fs"] = (100.0 * slope * 1.0 / FS_NM, "% FS")
-    result = ThermalExperiment(chamber, models, tests, figures, comparison_rows(figures, PAPER_FIGURES),
-                               compensation_model)
-    if plot_dir is not None:
-        object.__setattr__(result, "figures", plot_thermal(result, t_ref, plot_dir))
-    return result
+    return ThermalExperiment(chamber, models, tests, figures, comparison_rows(figures, PAPER_FIGURES),
+                             compensation_model, t_ref)
 
 
 def _rms(x: np.ndarray) -> float:
@@ -192,8 +209,8 @@ def main(argv: list[str] | None = None) -> int:
     params = load_params_arg(parser, args)
     print("factory calibration, chamber protocol (140 min simulated), two one-hour tests ...", file=sys.stderr)
     with run_errors(parser):
-        result = run_thermal(params, args.seed, args.plot)
-    print(format_rows("Temperature compensation (Table V, Sec. IV-C)", result.rows, band=TARGET_RATIO))
+        result = run_thermal(params, args.seed)
+    print(format_rows("Temperature compensation (Table V, Sec. IV-C)", result.rows(), band=TARGET_RATIO))
     print("\nzero-drift models fitted on the chamber record (paper: the rational function fits best):")
     for name, reason in result.models.failures.items():
         print(f"  {name:<9} failed: {reason}")
@@ -208,9 +225,7 @@ def main(argv: list[str] | None = None) -> int:
     for name, fit in result.models.fits.items():
         print(f"  {name:<9} RMS {fit.rmse_nm:.5f} N·m, max {fit.max_abs_error_nm:.5f} N·m, "
               f"{len(fit.coefficients)} constants")
-    write_outputs(args, result.to_dict())
-    for p in result.figures:
-        print(f"figure: {p}")
+    write_outputs(args, result.to_dict(), result.plot)
     records = {"chamber": result.chamber, **{f"drift test {load:g} N·m": r for load, r in result.drift_tests.items()}}
     record_rerun(args, lambda: {name: record_log(r.time_s, r.voltages_v, tau_sensor_nm=r.tau_sensor_nm,
                                                  tau_mini85_nm=r.tau_reference_nm, tau_applied_nm=r.tau_applied_nm,

@@ -63,7 +63,7 @@ def measure_breakaway(params: TestbedParams | None = None, *, sign: float = 1.0,
     if not broke_away:
         raise RuntimeError(f"no breakaway below {max_torque:.3g} N·m: the gear never moved on the ramp")
     start = broke_away[0]
-    return Breakaway(abs(ramp[start]), (start + 1) * tick, ramp_nm_per_s, log if keep_log else None)
+    return Breakaway(abs(float(ramp[start])), (start + 1) * tick, ramp_nm_per_s, log if keep_log else None)
 
 
 @dataclass(frozen=True)

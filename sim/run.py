@@ -248,7 +248,11 @@ def run_loop(plant: Plant, controller: Controller, n_ticks: int, *, measurements
             read[k, i] = obs[m.name]
         if extra_units:
             extras[k] = [v for m in loop.measurements for v in m.extra_values()]
-        command = controller.step(obs)
+        try:
+            command = controller.step(obs)
+        except KeyError as exc:
+            raise KeyError(f"the controller read {exc}, which this run does not observe; it observes "
+                           f"{', '.join(sorted(obs))}") from exc
         if logged_units:
             logged[k] = controller.log_values()
         lever[k] = ext_list[k] + (external(k, plant) if external is not None else 0.0)

@@ -4,12 +4,14 @@ usage error before anything runs."""
 import argparse
 import json
 import os
+import re
 import subprocess
 import sys
 from pathlib import Path
 
 import pytest
 
+from experiments.registry import COMMANDS, EXPERIMENTS
 from sim.params import TestbedParams
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -241,12 +243,23 @@ def test_the_shortest_demo_log_is_one_the_analysis_runs_on_and_its_extended_rig_
     assert saved.read_text().startswith("#")
 
 
-EXPERIMENTS_WITH_FIGURES = ("plant", "step", "sinusoid", "admittance", "paper", "open_loop_step", "calibration",
-                            "thermal", "tune", "discrepancy")
 EXPERIMENTS_WITHOUT_FIGURES = ("identify_defaults", "discrepancy_demo")
 
 
-@pytest.mark.parametrize("name", EXPERIMENTS_WITH_FIGURES + EXPERIMENTS_WITHOUT_FIGURES)
+def test_the_registry_lists_every_command_and_the_readme_every_entry():
+    """COMMANDS holds every experiments module that runs as a command; the README's command table names each,
+    and no other."""
+    commands = {path.stem for path in (ROOT / "experiments").glob("*.py")
+                if 'if __name__ == "__main__":' in path.read_text()}
+    assert commands == set(COMMANDS)
+    assert set(EXPERIMENTS) <= set(COMMANDS)
+    readme = (ROOT / "README.md").read_text()
+    table = {m for m in re.findall(r"^\| `python -m experiments\.(\w+)", readme, re.M)}
+    mentioned = set(re.findall(r"python -m experiments\.(\w+)", readme))
+    assert table | {"discrepancy"} == set(COMMANDS) and mentioned <= set(COMMANDS)
+
+
+@pytest.mark.parametrize("name", COMMANDS)
 def test_every_experiment_takes_no_plot_and_those_with_figures_take_plot(name, capsys):
     """README: every experiment takes --no-plot; those that draw figures take --plot DIR."""
     import importlib
@@ -257,7 +270,7 @@ def test_every_experiment_takes_no_plot_and_those_with_figures_take_plot(name, c
     assert exc.value.code == 0
     text = capsys.readouterr().out
     assert "--no-plot" in text
-    assert ("--plot DIR" in text) == (name in EXPERIMENTS_WITH_FIGURES)
+    assert ("--plot DIR" in text) == (name not in EXPERIMENTS_WITHOUT_FIGURES)
 
 
 def test_plant_card_with_no_plot_draws_nothing(tmp_path, monkeypatch, capsys):

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from controllers.admittance import AdmittanceController
-from controllers.pi import PITorqueController, paper_pi
+from controllers.pi import FEEDBACK_KEYS, PITorqueController, paper_pi
 from experiments.admittance import run_admittance
 from experiments.sinusoid import run_sinusoid
 from experiments.step import run_step
@@ -100,14 +100,14 @@ class BangBang:
 
     log_units = {"error": "N·m"}
 
-    def __init__(self, amplitude_nm: float = 0.05):
-        self.amplitude_nm, self.resets, self._error = amplitude_nm, 0, 0.0
+    def __init__(self, amplitude_nm: float = 0.05, measured: str = "tau_sensor"):
+        self.amplitude_nm, self.measured, self.resets, self._error = amplitude_nm, measured, 0, 0.0
 
     def reset(self) -> None:
         self.resets += 1
 
     def step(self, observation) -> float:
-        self._error = observation["tau_ref"] - observation["tau_sensor"]
+        self._error = observation["tau_ref"] - observation[self.measured]
         return observation["tau_ref"] + self.amplitude_nm * np.sign(self._error)
 
     def log_values(self):
@@ -152,3 +152,33 @@ def test_the_pi_closes_on_the_measurement_it_names():
     assert pi.log_values() == (0.5,)
     with pytest.raises(ValueError, match="velocity_damping_nms_per_rad"):
         PITorqueController(output_limit_nm=1.0, velocity_damping_nms_per_rad=-1.0)
+
+
+@pytest.mark.parametrize("name", ["step", "sinusoid", "admittance"])
+def test_every_controlled_paper_experiment_runs_through_the_registry_with_a_users_controller(name, tmp_path):
+    """The one interface: run(params, seed, duration_s, controller) -> rows(), to_dict(), plot(directory)."""
+    from experiments.registry import EXPERIMENTS
+
+    experiment = EXPERIMENTS[name]
+    if name == "admittance":
+        controller = AdmittanceController(desired_damping_nms_per_rad=6.0)
+    else:  # a factory: under each feedback the relay closes on that feedback's torque
+        controller = lambda params, feedback: BangBang(measured=FEEDBACK_KEYS[feedback])  # noqa: E731
+    result = experiment.run(PARAMS, seed=1, duration_s=SHORT_S, controller=controller)
+    assert isinstance(result.rows(), list) and result.to_dict()["rows"] == result.rows()
+    figures = result.plot(tmp_path)
+    assert figures and all(path.stat().st_size > 10_000 for path in figures)
+
+
+def test_the_sensor_experiments_refuse_a_controller_and_a_shortened_run():
+    from experiments.registry import EXPERIMENTS
+
+    with pytest.raises(ValueError, match="runs no controller"):
+        EXPERIMENTS["calibration"].run(PARAMS, controller=BangBang())
+    with pytest.raises(ValueError, match="no shortened mode"):
+        EXPERIMENTS["thermal"].run(PARAMS, duration_s=1.0)
+
+
+def test_a_controller_reading_what_the_run_does_not_observe_is_told_what_it_does():
+    with pytest.raises(KeyError, match="tau_sensor.*does not observe; it observes .*tau_current_estimate"):
+        run_step(PARAMS, ("current",), duration_s=SHORT_S, controller=BangBang())

@@ -60,7 +60,7 @@ def test_fig8_crosstalk_peak_equals_the_table_value(evaluation, axis):
 
 
 def test_thermal_writes_fig_9(tmp_path):
-    """run_thermal with a plot directory writes thermal_drift.png with content."""
-    result = run_thermal(TestbedParams(), seed=0, plot_dir=tmp_path)
-    assert [p.name for p in result.figures] == ["thermal_drift.png"]
-    assert result.figures[0].stat().st_size > MIN_PNG_BYTES
+    """run_thermal's result plots thermal_drift.png with content."""
+    figures = run_thermal(TestbedParams(), seed=0).plot(tmp_path)
+    assert [p.name for p in figures] == ["thermal_drift.png"]
+    assert figures[0].stat().st_size > MIN_PNG_BYTES

@@ -5,12 +5,11 @@
 The external torque comes from the torque sensor, as in the paper (the driver's current cannot see a torque
 applied to the lever), so there is no --feedback choice here.
 
-The hand (assumed; the paper gives no trajectory): a hand holding the lever is an impedance, a spring and
-damper at the joint (``HAND_STIFFNESS_NM_PER_RAD``, ``HAND_DAMPING_NMS_PER_RAD``: 5 N·m/rad is 500 N/m at
-the 0.1 m lever tip, a relaxed grip) pulled along a minimum-jerk path of ``PUSH_ANGLE_RAD``. The slow push
-takes ``SLOW_PUSH_S``, the fast one ``FAST_PUSH_S``. Through the virtual damper B_d the slow push needs a low
-torque and the lever follows the hand; the fast push needs a high torque and the lever lags: the
-controller resists it, as the paper's Fig. (a)/(b) show ("mild" against "pronounced" damping).
+The hand (:data:`sim.protocols.PUSHES`, assumed; the paper gives no trajectory): a hand holding the lever is
+an impedance, a spring and damper at the joint (5 N·m/rad, 500 N/m at the 0.1 m lever tip, a relaxed grip)
+pulled along a minimum-jerk path of 0.5 rad, in 4 s (slow push) or 0.4 s (fast push). Through the virtual
+damper B_d the slow push needs a low torque and the lever follows the hand; the fast push needs a high torque
+and the lever lags: the controller resists it, as the paper's Fig. (a)/(b) show ("mild" against "pronounced" damping).
 
 Figures: the lever's angle lag behind the hand at its largest, the peak hand torque and velocity, their ratio
 (the damping felt by the hand, N·m·s/rad), and how closely the lever's velocity follows the virtual
@@ -20,7 +19,7 @@ dynamics' ω_r (RMS of ω - ω_r over the peak of ω_r).
 from __future__ import annotations
 
 import sys
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
@@ -44,48 +43,9 @@ from sim.figures import save_figure
 from sim.motor_torque import CurrentToTorqueMap
 from sim.params import ParameterError, TestbedParams
 from sim.plant import Plant
+from sim.protocols import PUSH_ANGLE_RAD, PUSHES, Push
 from sim.run import Controller, run_loop
 from sim.runlog import RunLog
-
-HAND_STIFFNESS_NM_PER_RAD = 5.0  # assumed: 500 N/m at the 0.1 m tip, a relaxed human grip
-HAND_DAMPING_NMS_PER_RAD = 0.05  # assumed: 5 N·s/m at the tip
-PUSH_ANGLE_RAD = 0.5  # [rad] the hand's travel (~29°)
-SLOW_PUSH_S = 4.0  # [s]
-FAST_PUSH_S = 0.4  # [s]
-REST_BEFORE_S = 0.3  # [s] hand still before the push
-REST_AFTER_S = 1.5  # [s] hand still after the push
-
-
-@dataclass(frozen=True)
-class ScriptedHand:
-    """A hand moving along a minimum-jerk path, coupled to the lever by a spring and damper.
-
-    torque = k_h (θ_hand - θ) + b_h (ω_hand - ω) [N·m] on the lever at tick k.
-    """
-
-    push_s: float
-    angle_rad: float = PUSH_ANGLE_RAD
-    stiffness_nm_per_rad: float = HAND_STIFFNESS_NM_PER_RAD
-    damping_nms_per_rad: float = HAND_DAMPING_NMS_PER_RAD
-    period_s: float = 1e-3
-    before_s: float = REST_BEFORE_S
-    after_s: float = REST_AFTER_S
-
-    @property
-    def n_ticks(self) -> int:
-        return round((self.before_s + self.push_s + self.after_s) / self.period_s)
-
-    def path(self, t_s: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Hand angle [rad] and velocity [rad/s] at times ``t_s`` (minimum jerk)."""
-        s = np.clip((np.asarray(t_s) - self.before_s) / self.push_s, 0.0, 1.0)
-        angle = self.angle_rad * (10 * s**3 - 15 * s**4 + 6 * s**5)
-        velocity = self.angle_rad * (30 * s**2 - 60 * s**3 + 30 * s**4) / self.push_s
-        return angle, velocity
-
-    def torque_nm(self, k: int, angle_rad: float, velocity_rad_s: float) -> float:
-        hand_angle, hand_velocity = self.path(np.array([k * self.period_s]))
-        return float(self.stiffness_nm_per_rad * (hand_angle[0] - angle_rad)
-                     + self.damping_nms_per_rad * (hand_velocity[0] - velocity_rad_s))
 
 
 @dataclass(frozen=True)
@@ -119,7 +79,7 @@ class PushOutcome:
     final_angle_rad: float
     velocity_tracking: float
     log: RunLog | None = field(default=None, repr=False, compare=False)
-    hand: ScriptedHand | None = field(default=None, repr=False, compare=False)  # the hand this push used
+    hand: Push | None = field(default=None, repr=False, compare=False)  # the hand this push used
 
     def to_dict(self) -> dict:
         d = asdict(self)
@@ -184,29 +144,30 @@ def make_controller(params: TestbedParams) -> AdmittanceController:
                              f"admittance control (0, {longest_s:g}) s") from exc
 
 
-def run_push(params: TestbedParams, push_s: float, name: str, seed: int = 0, duration_s: float | None = None,
+def run_push(params: TestbedParams, push: Push, seed: int = 0, duration_s: float | None = None,
              progress: bool = False, controller: Controller | ControllerFactory | None = None) -> PushOutcome:
-    """One push of the scripted hand on the free lever under admittance control (``controller``: as for
-    :func:`run_admittance`)."""
+    """One push of the hand (:data:`sim.protocols.PUSHES`) on the free lever under admittance control
+    (``controller``: as for :func:`run_admittance`)."""
     dt = params.simulation.control_period_s
-    hand = ScriptedHand(push_s, period_s=dt)
+    hand = push
     if duration_s is not None:  # short mode: the same push, cut short
-        hand = ScriptedHand(min(push_s, duration_s), period_s=dt, before_s=min(REST_BEFORE_S, duration_s / 4),
-                            after_s=min(REST_AFTER_S, duration_s / 4))
+        hand = replace(push, push_s=min(push.push_s, duration_s), before_s=min(push.before_s, duration_s / 4),
+                       after_s=min(push.after_s, duration_s / 4))
     plant = Plant(params, "free")
 
     def hand_torque(k: int, plant: Plant) -> float:
-        return hand.torque_nm(k, plant.output_angle_rad, plant.output_velocity_rad_s)
+        return hand.torque_nm(k * dt, plant.output_angle_rad, plant.output_velocity_rad_s)
 
     log = run_loop(plant, build_controller(controller, lambda p, _: make_controller(p), params, "sensor"),
-                   hand.n_ticks, measurements=loop_measurements("sensor", params, seed), external=hand_torque,
-                   progress_label=f"{name} push" if progress else None,
+                   round(hand.duration_s / dt), measurements=loop_measurements("sensor", params, seed),
+                   external=hand_torque,
+                   progress_label=push.name if progress else None,
                    meta={"feedback": "sensor", "push_s": hand.push_s, "seed": seed})
     hand_angle, _ = hand.path(log["time"])
     omega, omega_ref = log["qd_motor"], log["omega_ref"]
     peak_torque = float(np.abs(log["tau_ext"]).max())
     peak_velocity = float(np.abs(log["qd"]).max())
-    return PushOutcome(name, hand.push_s, peak_torque, peak_velocity,
+    return PushOutcome(push.name.split()[0], hand.push_s, peak_torque, peak_velocity,
                        peak_torque / peak_velocity if peak_velocity > 0 else float("inf"),
                        float(np.max(hand_angle - log["q"])), float(log["q"][-1]),
                        float(np.sqrt(np.mean((omega - omega_ref) ** 2)) / max(np.abs(omega_ref).max(), 1e-12)),
@@ -224,8 +185,8 @@ def run_admittance(params: TestbedParams | None = None, seed: int = 0, duration_
     on the lever is ``tau_ext`` in the logs.
     """
     params = params or TestbedParams()
-    return AdmittanceResult([run_push(params, SLOW_PUSH_S, "slow", seed, duration_s, progress, controller),
-                             run_push(params, FAST_PUSH_S, "fast", seed, duration_s, progress, controller)], seed)
+    return AdmittanceResult([run_push(params, push, seed, duration_s, progress, controller) for push in PUSHES],
+                            seed)
 
 
 def format_result(result: AdmittanceResult) -> str:

@@ -19,7 +19,14 @@ import shlex
 import sys
 from pathlib import Path
 
-from experiments.common import MAX_DURATION_S, add_no_figures_arg, check_output_paths, cli_parser, run_seconds, seed_arg
+from experiments.common import (
+    MAX_DURATION_S,
+    add_no_figures_arg,
+    check_output_paths,
+    cli_parser,
+    run_seconds,
+    seed_arg,
+)
 from experiments.synthetic_logs import (
     EXPERIMENTS,
     FINE_MOTOR_ENCODER_COUNTS,

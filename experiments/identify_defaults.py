@@ -39,7 +39,7 @@ steps per tick instead of 16 (25 % slower) and ζ 1 was kept for that reason, no
 Two measurement-protocol quantities the paper leaves out are inferred in closed form (not fitted):
 * load-cell reading noise (``loadcell.reading_noise_n`` in ``sim.params``): the flat sensor-feedback step
   errors of Table VI are a measurement floor;
-* disturbance rate (``experiments.step.DISTURBANCE_RATE_NM_PER_S``): ramp-following error rate/Ki of the PI.
+* disturbance rate (``sim.protocols.Disturbance.rate_nm_per_s``): ramp-following error rate/Ki of the PI.
 
 Nothing is scaled to hit a number: the script only chooses among candidate parameter sets and reports the
 residual of every figure for the chosen one.
@@ -60,9 +60,19 @@ from pathlib import Path
 
 import numpy as np
 
-from experiments.common import (add_no_figures_arg, add_rerun_args, check_output_paths, cli_parser, outside_band,
-                                record_rerun, rerun_requested, run_seconds, run_settings, short_run_banner,
-                                write_json)
+from experiments.common import (
+    add_no_figures_arg,
+    add_rerun_args,
+    check_output_paths,
+    cli_parser,
+    outside_band,
+    record_rerun,
+    rerun_requested,
+    run_seconds,
+    run_settings,
+    short_run_banner,
+    write_json,
+)
 from experiments.sinusoid import run_sinusoid
 from experiments.step import run_step
 from sim.params import TestbedParams

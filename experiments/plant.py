@@ -17,10 +17,28 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from experiments.common import (add_output_args, add_params_arg, add_rerun_args, load_params_arg, record_rerun,
-                                rerun_requested, write_outputs)
-from models.gim8108_testbed.derived import FIXTURES, derive, lumped_modes_hz, physics_timestep, substeps_by_rule
-from sim.characterize import linearizable_plant, linearized_modes, measure_backlash, measure_breakaway
+from experiments.common import (
+    add_output_args,
+    add_params_arg,
+    add_rerun_args,
+    load_params_arg,
+    record_rerun,
+    rerun_requested,
+    write_outputs,
+)
+from models.gim8108_testbed.derived import (
+    FIXTURES,
+    derive,
+    lumped_modes_hz,
+    physics_timestep,
+    substeps_by_rule,
+)
+from sim.characterize import (
+    linearizable_plant,
+    linearized_modes,
+    measure_backlash,
+    measure_breakaway,
+)
 from sim.figures import save_figure
 from sim.motor_torque import CurrentToTorqueMap
 from sim.params import TestbedParams

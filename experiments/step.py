@@ -13,16 +13,14 @@ Protocol (the paper gives the step sizes, the gains and the 1 kHz cycle; the res
   paper's sensor-feedback RMS errors are the same for the three step sizes (0.0026, 0.0026, 0.0025 N·m),
   which a window containing the transient would not give, and its current-feedback errors match
   (1 - reached fraction) x step, a steady-state figure.
-* Disturbance: regulation at 0.5 N·m; after ``PRE_DISTURBANCE_S`` a hand twists the gear's output flange
-  (upstream of the flexure: the sensor and the load cell both see it, the driver's current does not)
-  against the motor, its torque growing at ``DISTURBANCE_RATE_NM_PER_S`` up to ``DISTURBANCE_MAX_NM``.
+* Disturbance (:data:`sim.protocols.DISTURBANCE`, which says why the hand twists the flange and at what rate):
+  regulation at 0.5 N·m; after 2 s a hand twists the gear's output flange (upstream of the flexure: the sensor
+  and the load cell both see it, the driver's current does not) against the motor, its torque growing at
+  0.07 N·m/s up to 2.5 N·m.
   The run goes on to the full disturbance; the RMS error is over the disturbance phase up to where
   regulation is lost (|load-cell torque - reference| > ``REGULATION_LOST_NM``), or to the end if it is not.
   The figure shades each evaluated window and marks the loss. The paper reports the disturbance at
   which current-feedback regulation failed (≈ 0.3 N·m) and that sensor feedback held past 2 N·m.
-  Why the flange and not the lever: a torque on the lever goes straight into the load cell (16 700 N·m/rad
-  against 760 N·m/rad through the flexure and the stuck gear), so no controller on the flexure's torque
-  could keep the load cell at 0.5 N·m, which the paper's 0.0058 N·m sensor-feedback error shows it did.
 """
 
 from __future__ import annotations
@@ -56,7 +54,7 @@ from experiments.common import (
 from sim.figures import save_figure
 from sim.params import TestbedParams
 from sim.plant import Plant
-from sim.protocols import PRE_STEP_S, STEPS_NM
+from sim.protocols import DISTURBANCE, PRE_STEP_S, STEPS_NM
 from sim.run import Controller
 from sim.runlog import RunLog
 
@@ -68,16 +66,9 @@ PAPER_DISTURBANCE_RMS_NM = {"current": 0.1893, "sensor": 0.0058}
 PAPER_REACHED_FRACTION = {0.05: 0.30, 0.1: 0.40, 0.2: 0.65}
 # Paper Sec. V-A: disturbance at which regulation was lost (current) / still held (sensor) [N·m].
 PAPER_DISTURBANCE_LOST_NM = {"current": 0.3, "sensor": 2.0}
-REGULATED_NM = 0.5
 
 STEP_HOLD_S = 5.0  # [s] step held
 SETTLE_S = 1.0  # [s] ~10 time constants of the PI's integral action, (1 + Kp)/Ki = 93 ms
-PRE_DISTURBANCE_S = 2.0  # [s] regulation before the hand pushes
-# [N·m/s] inferred, not given: a PI with reference feed-forward follows a ramp disturbance with the steady
-# error rate/Ki, so the paper's sensor-feedback 0.0058 N·m (Table VI) implies a hand pressing harder at about
-# 12 1/s x 0.0058 N·m = 0.07 N·m/s (2.5 N·m in ~36 s).
-DISTURBANCE_RATE_NM_PER_S = 0.07
-DISTURBANCE_MAX_NM = 2.5  # [N·m] "past 2 N·m"
 REGULATION_LOST_NM = 0.25  # [N·m] half the regulated torque: the load cell has clearly left 0.5 N·m
 
 
@@ -186,12 +177,11 @@ def run_step_case(params: TestbedParams, feedback: str, step_nm: float, seed: in
 
 
 def disturbance_profile(params: TestbedParams, duration_s: float | None = None) -> np.ndarray:
-    """The hand's torque on the output flange per tick [N·m]: zero, then growing against the motor."""
+    """The hand's torque on the output flange per tick [N·m] (:data:`sim.protocols.DISTURBANCE`, at the end of
+    each tick): zero, then growing against the motor; ``duration_s`` cuts the test short."""
     dt = params.simulation.control_period_s
-    ramp_s = DISTURBANCE_MAX_NM / DISTURBANCE_RATE_NM_PER_S
-    total_s = PRE_DISTURBANCE_S + ramp_s if duration_s is None else duration_s
-    t = np.arange(1, round(total_s / dt) + 1) * dt
-    return -np.clip((t - PRE_DISTURBANCE_S) * DISTURBANCE_RATE_NM_PER_S, 0.0, DISTURBANCE_MAX_NM)
+    total_s = DISTURBANCE.duration_s if duration_s is None else duration_s
+    return DISTURBANCE.hub_torque(np.arange(1, round(total_s / dt) + 1) * dt)
 
 
 def run_disturbance_case(params: TestbedParams, feedback: str, seed: int = 0, duration_s: float | None = None,
@@ -201,19 +191,19 @@ def run_disturbance_case(params: TestbedParams, feedback: str, seed: int = 0, du
     ``controller``: as for :func:`run_step`."""
     plant = Plant(params, "locked")
     plant.reset(backlash_side=1)
+    dt = params.simulation.control_period_s
     hub = disturbance_profile(params, duration_s)
-    reference = np.full(len(hub), REGULATED_NM)
+    reference = DISTURBANCE.reference(np.arange(len(hub)) * dt)
     log = run_tracking(params, plant, build_controller(controller, paper_pi, params, feedback), feedback, seed,
                        reference, tau_hub_nm=hub, label=f"disturbance, {feedback}" if progress else None,
-                       meta={"regulated_nm": REGULATED_NM})
+                       meta={"regulated_nm": DISTURBANCE.regulated_nm})
     output = log["tau_loadcell"]
-    dt = params.simulation.control_period_s
-    start = min(round(PRE_DISTURBANCE_S / dt), len(hub) // 2)
-    lost = np.flatnonzero(np.abs(output[start:] - REGULATED_NM) > REGULATION_LOST_NM)
+    start = min(round(DISTURBANCE.pre_s / dt), len(hub) // 2)
+    lost = np.flatnonzero(np.abs(output[start:] - DISTURBANCE.regulated_nm) > REGULATION_LOST_NM)
     end = start + int(lost[0]) + 1 if len(lost) else len(hub)
     at_loss = float(abs(hub[end - 1])) if len(lost) else None
     err = tracking_error(output[start:end], reference[start:end])
-    return StepCase("disturbance", feedback, REGULATED_NM, err, PAPER_DISTURBANCE_RMS_NM[feedback],
+    return StepCase("disturbance", feedback, DISTURBANCE.regulated_nm, err, PAPER_DISTURBANCE_RMS_NM[feedback],
                     disturbance_at_loss_nm=at_loss, disturbance_max_nm=float(np.abs(hub[:end]).max()),
                     window_s=(float(log["time"][start]), float(log["time"][end - 1])), log=log)
 

@@ -52,6 +52,7 @@ from pathlib import Path
 import numpy as np
 from scipy.optimize import minimize
 
+from controllers.feedback import check_feedback
 from controllers.pi import FEEDBACK_KEYS, PAPER_KI_PER_S, PAPER_KP, PITorqueController
 from controllers.tracking import tracking_error
 from envs.torque_tracking import OBSERVATION_NAMES, TorqueTrackingEnv
@@ -210,8 +211,7 @@ def tune(params: TestbedParams | None = None, feedback: str = "sensor", damping:
         M >= 1: candidates whose gains x M track any task worse than the paper's gains are inadmissible
         (1 switches the check off).
     """
-    if feedback not in FEEDBACK_KEYS:
-        raise ValueError(f"feedback = {feedback!r}: valid values are {', '.join(FEEDBACK_KEYS)}")
+    check_feedback(feedback)
     if max_evaluations < 1:
         raise ValueError(f"max_evaluations = {max_evaluations!r}: valid range [1, inf)")
     if not (math.isfinite(gain_margin) and gain_margin >= 1.0):

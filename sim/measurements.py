@@ -104,7 +104,8 @@ class LoadCell:
     extra_units: Mapping[str, str] = {}
 
     def __init__(self, params: TestbedParams, noise: int | np.random.Generator | None = None) -> None:
-        self.sigma_nm = params.loadcell.reading_noise_n * params.lever.length_m
+        self.lever_m = params.lever.length_m
+        self.sigma_nm = params.loadcell.reading_noise_n * self.lever_m
         self._noise = noise
         self.reset()
 
@@ -117,7 +118,7 @@ class LoadCell:
     def read(self, plant: Plant) -> float:
         if plant.fixture != "locked":
             return plant.flexure_torque_nm
-        value = plant.loadcell_torque_nm
+        value = plant.loadcell_force_n * self.lever_m  # what it measures is the force at the lever tip
         return value + self._normal(0.0, self.sigma_nm) if self._normal is not None else value
 
     def extra_values(self) -> Sequence[float]:

@@ -46,7 +46,7 @@ from sim.params import TestbedParams, range_text
 PAPER_KP = 0.12  # [-] N·m command per N·m error
 PAPER_KI_PER_S = 12.0  # [1/s]
 PAPER_ANTIWINDUP_PER_S = 5.0  # [1/s]
-PAPER_CONTROL_PERIOD_S = 1e-3  # [s] 1 kHz
+PAPER_CONTROL_PERIOD_S = TestbedParams().simulation.control_period_s  # [s] the parameter's default, the paper's 1 kHz
 REFERENCE_FEEDFORWARD = 1.0  # [-] the reference is the driver's torque command (interpretation, see above)
 
 

@@ -38,9 +38,9 @@ from experiments.common import (
     seed_arg,
     write_outputs,
 )
-from sensor.calibration import FS_NM
 from sensor.chamber import TemperatureRecord, chamber_run, drift_run
 from sensor.drift_fit import DriftFit, DriftModelComparison, compare_drift_models
+from sensor.metrics import drift_rms_nm, zero_drift_per_kelvin_pct_fs
 from sensor.readout import factory_calibration
 from sim.figures import moving_mean, save_figure
 from sim.params import TestbedParams
@@ -107,24 +107,16 @@ def run_thermal(params: TestbedParams | None = None, seed: int = 0) -> ThermalEx
     figures: dict[str, tuple[float | None, str]] = {}
     for load, rec in tests.items():  # each reading against the applied torque (module docstring)
         tag = f"{load:g}nm"
-        figures[f"drift_rms_{tag}_uncompensated"] = (_rms(rec.tau_sensor_nm - rec.tau_applied_nm), "N·m")
+        figures[f"drift_rms_{tag}_uncompensated"] = (drift_rms_nm(rec.tau_sensor_nm, rec.tau_applied_nm), "N·m")
         figures[f"drift_rms_{tag}_compensated"] = (
-            _rms(compensate(rec, drift_model, t_ref) - rec.tau_applied_nm), "N·m")
-        figures[f"mini85_drift_rms_{tag}"] = (_rms(rec.tau_reference_nm - rec.tau_applied_nm), "N·m")
+            drift_rms_nm(compensate(rec, drift_model, t_ref), rec.tau_applied_nm), "N·m")
+        figures[f"mini85_drift_rms_{tag}"] = (drift_rms_nm(rec.tau_reference_nm, rec.tau_applied_nm), "N·m")
         figures[f"dyjn104_drift_rms_{tag}"] = (None, "N·m")
-    # The paper: "a maximum temperature change of 1 °C resulted in about 0.014 % FS": the zero drift's
-    # largest change over 1 °C in the one-hour tests' temperature range, from the fitted curve.
     t_lo = min(r.tmp117_c.min() for r in tests.values())
     t_hi = max(r.tmp117_c.max() for r in tests.values())
-    grid = np.linspace(t_lo, max(t_hi, t_lo + 1.0), 200)
-    slope = np.max(np.abs(np.gradient(drift_model.predict(grid), grid)))
-    figures["drift_per_kelvin_pct_fs"] = (100.0 * slope * 1.0 / FS_NM, "% FS")
+    figures["drift_per_kelvin_pct_fs"] = (zero_drift_per_kelvin_pct_fs(drift_model.predict, t_lo, t_hi), "% FS")
     return ThermalExperiment(chamber, models, tests, figures, comparison_rows(figures, PAPER_FIGURES),
                              compensation_model, t_ref)
-
-
-def _rms(x: np.ndarray) -> float:
-    return float(np.sqrt(np.mean(np.square(x))))
 
 
 DRIFT_PLOT_MEAN_S = 60.0  # [s] averaging window of the one-hour traces in the figure (display only)

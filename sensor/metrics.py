@@ -17,6 +17,10 @@ repeatability          max range across repeated cycles at the same reference  0
 crosstalk              ``max |tau_hat|`` under an applied T_x (T_y) moment / FS  0.148 / 0.126 % FS
 3-sigma resolution     ``3 * std(tau_hat)`` over a no-load record (10 s at      0.0224 N m (QP),
                        1 kHz, unfiltered)                                      0.0480 N m (LS)
+drift RMS              ``sqrt(mean((tau_hat - tau)^2))`` over a one-hour test   0.0326 N m at 10 N m
+                       at constant load (Sec. IV-C)                            (T. V, uncompensated)
+zero drift per 1 K     largest slope of the fitted zero drift over the tests'  0.014 % FS
+                       temperature range x 1 K / FS (Sec. IV-C)
 =====================  ======================================================  ==================
 
 What the paper leaves open, and the choice made here
@@ -78,6 +82,8 @@ __all__ = [
     "repeatability",
     "crosstalk",
     "resolution_3sigma",
+    "drift_rms_nm",
+    "zero_drift_per_kelvin_pct_fs",
 ]
 
 DEFAULT_N_BINS = 50
@@ -652,3 +658,25 @@ def resolution_3sigma(tau_hat_no_load: np.ndarray, *,
     std = float(np.std(t, ddof=1))
     return ResolutionResult(std_nm=std, resolution_3sigma_nm=3.0 * std, n_samples=t.size,
                             duration_s=t.size / fs_hz)
+
+
+# --- Temperature (Sec. IV-C, Table V) ----------------------------------------------------------------------
+ZERO_DRIFT_GRID_POINTS = 200  # temperatures the fitted zero drift's slope is evaluated at
+
+
+def drift_rms_nm(tau_hat: np.ndarray, tau_ref: np.ndarray) -> float:
+    """A one-hour test's drift RMS: ``sqrt(mean((tau_hat - tau)^2))`` of the reading against the applied torque
+    at constant load [N m] (Table V)."""
+    return rms_error_nm(tau_hat, tau_ref)
+
+
+def zero_drift_per_kelvin_pct_fs(zero_drift_nm, t_low_c: float, t_high_c: float, *, fs_nm: float = FS_NM) -> float:
+    """The paper's "a maximum temperature change of 1 °C resulted in about 0.014 % FS": the largest change of the
+    fitted zero drift over 1 °C within the tests' temperature range [% FS].
+
+    ``zero_drift_nm`` maps temperatures [°C] (an array) to the zero drift [N m]; its slope is taken by finite
+    differences on :data:`ZERO_DRIFT_GRID_POINTS` temperatures from ``t_low_c`` to ``t_high_c`` (at least 1 °C).
+    """
+    grid = np.linspace(t_low_c, max(t_high_c, t_low_c + 1.0), ZERO_DRIFT_GRID_POINTS)
+    slope = np.max(np.abs(np.gradient(zero_drift_nm(grid), grid)))
+    return _PCT * slope * 1.0 / _fs(fs_nm)

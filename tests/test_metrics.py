@@ -172,3 +172,21 @@ def test_pure_backlash_loop_has_full_width_hysteresis_and_no_nonlinearity():
     hat = ref + 0.05 * direction
     assert m.hysteresis(ref, hat, direction).hysteresis_pct_fs == pytest.approx(0.125)
     assert m.nonlinearity(ref, hat, direction).nonlinearity_pct_fs < 1e-6
+
+
+def test_zero_drift_per_kelvin_is_the_largest_slope_of_the_fit_over_the_tests_range():
+    """A linear drift of 4 mN·m/K is 0.005 % of 80 N·m per kelvin exactly; a quadratic one's largest slope is
+    at the warm end (2·a·ΔT), whatever the grid."""
+    from sensor.metrics import zero_drift_per_kelvin_pct_fs
+
+    assert zero_drift_per_kelvin_pct_fs(lambda t: 0.004 * (t - 25.0), 20.0, 30.0) == pytest.approx(0.005, rel=1e-9)
+    quadratic = zero_drift_per_kelvin_pct_fs(lambda t: 0.001 * (t - 25.0) ** 2, 20.0, 30.0, fs_nm=50.0)
+    assert quadratic == pytest.approx(100.0 * 2 * 0.001 * 5.0 / 50.0, rel=0.01)
+    assert zero_drift_per_kelvin_pct_fs(lambda t: 0.004 * t, 25.0, 25.0) == pytest.approx(0.005, rel=1e-9)
+
+
+def test_drift_rms_is_the_rms_of_the_reading_against_the_applied_torque():
+    from sensor.metrics import drift_rms_nm
+
+    assert drift_rms_nm(np.array([10.03, 9.96, 10.0, 10.01]), np.full(4, 10.0)) == pytest.approx(
+        np.sqrt((0.03**2 + 0.04**2 + 0.0 + 0.01**2) / 4))

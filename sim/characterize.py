@@ -118,8 +118,8 @@ class Mode:
 
 def settle_under_preload(plant: Plant, preload_nm: float, duration_s: float = 0.5) -> None:
     """Hold a constant motor torque until the plant is at rest (locked fixture: a closed backlash stop)."""
-    for _ in range(round(duration_s / plant.params.simulation.control_period_s)):
-        plant.step(preload_nm)
+    run_open_loop(plant, np.full(round(duration_s / plant.params.simulation.control_period_s), preload_nm),
+                  progress=False)
 
 
 def linearizable_plant(params: TestbedParams | None, fixture: str, preload_nm: float,

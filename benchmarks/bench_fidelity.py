@@ -1,23 +1,24 @@
 """The fidelity presets (``simulation.substeps_rule``): what 'fast' changes against 'accurate', in one process.
 
-    python -m benchmarks.bench_fidelity [--duration 10] [--repeats 5] [--paper] [--fast-substeps N]
+    python -m benchmarks.bench_fidelity [--duration 10] [--repeats 5] [--paper] [--fast-substeps N] [--cpu-time]
 
 Prints, for the default parameters under each rule:
 
 (a) speed: ``Plant.step`` ticks/s of a locked-fixture run at 1 kHz (the two rules' runs alternated, best of
     the repeats) and the ratio fast / accurate;
 (b) the locked fixture's linearised modes under a 1 N·m preload (``sim.characterize.linearized_modes``): the
-    drivetrain mode and the lightly damped load-cell mode, and the latter's free-vibration peak, under both
-    rules and at a 16x finer step than accurate (the h -> 0 reference);
+    drivetrain mode, and the lightly damped lever mode (the lever between flexure and load cell) with its
+    free-vibration peak, under both rules and at a 16x finer step than accurate (the h -> 0 reference);
 (c) what 'fast' relaxes at the backlash stops: the stop's penetration at the driver's limit (locked), and in
     the admittance experiment's slow push (free fixture) the deepest penetration and the tick-to-tick
     roughness of the flexure torque (RMS of its second difference);
 (d) what MuJoCo would need for 8 substeps: the drivetrain mode at 8 and 16 substeps with the presliding
-    friction integrated four ways (see :func:`presliding_scheme_mode`);
+    friction integrated six ways (see :func:`presliding_scheme_mode`);
 (e) with ``--paper``: every figure of ``experiments.paper`` under both rules, its relative change, the
     largest and the median change (about 1-2 minutes).
 
-``--fast-substeps N`` measures 'fast' with ``simulation.fast_substeps_per_tick = N`` instead of its default.
+``--fast-substeps N`` measures 'fast' with ``simulation.fast_substeps_per_tick = N`` instead of its default;
+``--cpu-time`` times (a) by the process's CPU time (steadier on a loaded machine).
 """
 
 from __future__ import annotations
@@ -25,13 +26,14 @@ from __future__ import annotations
 import argparse
 import re
 import statistics
+import time
 import types
 
 import mujoco
 import numpy as np
 
 from benchmarks.bench_plant import best_rate
-from experiments.admittance import SLOW_PUSH_S, run_push
+from experiments.admittance import FAST_PUSH_S, SLOW_PUSH_S, run_push
 from experiments.paper import run_paper
 from models.gim8108_testbed.build import build_xml
 from models.gim8108_testbed.derived import derive
@@ -59,8 +61,10 @@ def rules(fast_substeps: int | None = None) -> dict[str, TestbedParams]:
     return {"accurate": p, "fast": p.replace(simulation=fast)}
 
 
-def step_rates(duration_s: float, repeats: int, fast_substeps: int | None = None) -> dict[str, tuple[float, int]]:
-    """Best ``Plant.step`` ticks/s [1/s] and substeps per tick of each rule (locked), runs alternated."""
+def step_rates(duration_s: float, repeats: int, fast_substeps: int | None = None,
+               clock=time.perf_counter) -> dict[str, tuple[float, int]]:
+    """Best ``Plant.step`` ticks/s [1/s] and substeps per tick of each rule (locked), runs alternated; ``clock``
+    as for :func:`benchmarks.bench_plant.best_rate`."""
     params = rules(fast_substeps)
     n = round(duration_s / TestbedParams().simulation.control_period_s)
     tau = 0.5 + 0.3 * np.sin(2 * np.pi * 0.2 * np.arange(n) * 1e-3)
@@ -71,28 +75,29 @@ def step_rates(duration_s: float, repeats: int, fast_substeps: int | None = None
                 plant = Plant(p, "locked")
                 for u in tau:
                     plant.step(u)
-            best[name] = max(best[name], best_rate(stepped, n, 1))
+            best[name] = max(best[name], best_rate(stepped, n, 1, clock))
     return {name: (best[name], Plant(p, "locked").n_substeps) for name, p in params.items()}
 
 
 def locked_modes(fast_substeps: int | None = None) -> dict[str, dict[str, float]]:
-    """Drivetrain and load-cell modes of the locked fixture [Hz, 1] under each rule and the fine reference."""
+    """Drivetrain and lever modes of the locked fixture [Hz, 1] under each rule and the fine reference."""
     params = rules(fast_substeps)
     plants = {name: linearizable_plant(p, "locked", PRELOAD_NM) for name, p in params.items()}
     plants["reference"] = linearizable_plant(params["accurate"], "locked", PRELOAD_NM,
                                              timestep_s=plants["accurate"].timestep_s / REFINEMENT)
     out = {}
     for name, plant in plants.items():
-        drivetrain, loadcell = linearized_modes(plant)[:2]
+        drivetrain, lever = linearized_modes(plant)[:2]
         out[name] = {"drivetrain_hz": drivetrain.natural_frequency_hz, "drivetrain_zeta": drivetrain.damping_ratio,
-                     "loadcell_hz": loadcell.natural_frequency_hz, "loadcell_zeta": loadcell.damping_ratio,
-                     "loadcell_peak_hz": free_vibration_peak_hz(plant, duration_s=1.0),
+                     "lever_hz": lever.natural_frequency_hz, "lever_zeta": lever.damping_ratio,
+                     "lever_peak_hz": free_vibration_peak_hz(plant, duration_s=1.0),
                      "substeps": plant.n_substeps}
     return out
 
 
 def stop_relaxation(fast_substeps: int | None = None) -> dict[str, dict[str, float]]:
-    """Backlash-stop penetration [fraction of the gap] and flexure-torque roughness [N·m] under each rule."""
+    """Backlash-stop penetration [fraction of the gap] at the driver's limit (locked) and, in each admittance push
+    (free), the deepest penetration, the flexure torque's roughness [N·m] and the peak lever velocity [rad/s]."""
     out = {}
     for name, p in rules(fast_substeps).items():
         gap = p.backlash.width_rad
@@ -100,12 +105,13 @@ def stop_relaxation(fast_substeps: int | None = None) -> dict[str, dict[str, flo
         limit = CurrentToTorqueMap.from_params(p).command_limit_nm
         for _ in range(500):
             plant.step(limit)
-        full = (abs(plant.backlash_angle_rad) - 0.5 * gap) / gap
-        log = run_push(p, SLOW_PUSH_S, "slow", 0, None, False).log
-        backlash, tau = np.abs(np.asarray(log["backlash_angle"])), np.asarray(log["tau_flexure"])
-        out[name] = {"full_torque_penetration": full,
-                     "push_max_penetration": max(float(backlash.max()) - 0.5 * gap, 0.0) / gap,
-                     "push_tau_roughness_nm": float(np.sqrt(np.mean(np.diff(tau, 2) ** 2)))}
+        out[name] = {"full_torque_penetration": (abs(plant.backlash_angle_rad) - 0.5 * gap) / gap}
+        for push, push_s in (("slow", SLOW_PUSH_S), ("fast", FAST_PUSH_S)):
+            log = run_push(p, push_s, push, 0, None, False).log
+            backlash, tau = np.abs(np.asarray(log["backlash_angle"])), np.asarray(log["tau_flexure"])
+            out[name] |= {f"{push}_push_max_penetration": max(float(backlash.max()) - 0.5 * gap, 0.0) / gap,
+                          f"{push}_push_tau_roughness_nm": float(np.sqrt(np.mean(np.diff(tau, 2) ** 2))),
+                          f"{push}_push_peak_velocity_rad_s": float(np.max(np.abs(np.asarray(log["qd"]))))}
     return out
 
 
@@ -165,14 +171,18 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--duration", type=float, default=10.0, help="simulated seconds per speed run (default 10)")
     parser.add_argument("--repeats", type=int, default=5)
     parser.add_argument("--paper", action="store_true", help="also run experiments.paper under both rules")
+    parser.add_argument("--cpu-time", action="store_true",
+                        help="time the speed runs by this process's CPU time instead of wall time")
     parser.add_argument("--fast-substeps", type=int, metavar="N",
                         help="simulation.fast_substeps_per_tick of 'fast' (default: the parameter's default)")
     args = parser.parse_args(argv)
     n = args.fast_substeps
 
-    rates = step_rates(args.duration, args.repeats, n)
+    clock = time.process_time if args.cpu_time else time.perf_counter
+    rates = step_rates(args.duration, args.repeats, n, clock)
     (acc, n_acc), (fast, n_fast) = rates["accurate"], rates["fast"]
-    print(f"(a) Plant.step, locked, {args.duration:g} s at 1 kHz, best of {args.repeats} (alternated)")
+    print(f"(a) Plant.step, locked, {args.duration:g} s at 1 kHz, best of {args.repeats} (alternated), "
+          f"{'CPU' if args.cpu_time else 'wall'} time")
     print(f"  accurate ({n_acc} substeps) {acc:9.0f} ticks/s   fast ({n_fast} substeps) {fast:9.0f} ticks/s   "
           f"ratio {fast / acc:.2f}x")
 
@@ -181,20 +191,23 @@ def main(argv: list[str] | None = None) -> None:
     print(f"(b) locked fixture, {PRELOAD_NM:g} N·m preload; reference: accurate step / {REFINEMENT} "
           f"({ref['substeps']} substeps)")
     for key, label in (("drivetrain_hz", "drivetrain mode f_n [Hz]"), ("drivetrain_zeta", "drivetrain mode ζ"),
-                       ("loadcell_hz", "load-cell mode f_n [Hz]"), ("loadcell_zeta", "load-cell mode ζ"),
-                       ("loadcell_peak_hz", "load-cell free-vibration peak [Hz]")):
+                       ("lever_hz", "lever mode f_n [Hz]"), ("lever_zeta", "lever mode ζ"),
+                       ("lever_peak_hz", "lever mode free-vibration peak [Hz]")):
         a, f, r = modes["accurate"][key], modes["fast"][key], ref[key]
         print(f"  {label:36s} accurate {a:9.4g} ({a / r - 1:+6.2%} vs ref)   fast {f:9.4g} ({f / r - 1:+6.2%} vs ref)"
               f"   fast vs accurate {f / a - 1:+6.2%}   ref {r:9.4g}")
 
     stops = stop_relaxation(n)
     print("(c) backlash stops")
-    for key, label, fmt in (("full_torque_penetration", "penetration at the driver's limit, of the gap", "{:.2%}"),
-                            ("push_max_penetration", "admittance slow push: deepest penetration, of the gap",
-                             "{:.1%}"),
-                            ("push_tau_roughness_nm", "admittance slow push: RMS 2nd difference of τ_flexure [N·m]",
-                             "{:.2g}")):
-        print(f"  {label:60s} accurate {fmt.format(stops['accurate'][key]):>8s}   "
+    rows = [("full_torque_penetration", "penetration at the driver's limit, of the gap", "{:.2%}")]
+    for push in ("slow", "fast"):
+        rows += [(f"{push}_push_max_penetration", f"admittance {push} push: deepest penetration, of the gap", "{:.1%}"),
+                 (f"{push}_push_tau_roughness_nm", f"admittance {push} push: RMS 2nd difference of τ_flexure [N·m]",
+                  "{:.2g}"),
+                 (f"{push}_push_peak_velocity_rad_s", f"admittance {push} push: peak lever velocity [rad/s]",
+                  "{:.3f}")]
+    for key, label, fmt in rows:
+        print(f"  {label:62s} accurate {fmt.format(stops['accurate'][key]):>8s}   "
               f"fast {fmt.format(stops['fast'][key]):>8s}")
 
     print(f"(d) drivetrain mode with the presliding friction integrated each way, vs {SCHEME_REFERENCE_SUBSTEPS} "
@@ -204,11 +217,11 @@ def main(argv: list[str] | None = None) -> None:
         cells = []
         for substeps in (8, 16):
             mode = presliding_scheme_mode(bristle, damping, substeps)
-            cells.append(f"{substeps:2d} substeps: f_n {mode.natural_frequency_hz / reference.natural_frequency_hz - 1:+6.2%}"
-                         f", ζ {mode.damping_ratio / reference.damping_ratio - 1:+6.2%}")
-        cells = "   ".join(cells)
+            f_n = mode.natural_frequency_hz / reference.natural_frequency_hz - 1
+            zeta = mode.damping_ratio / reference.damping_ratio - 1
+            cells.append(f"{substeps:2d} substeps: f_n {f_n:+6.2%}, ζ {zeta:+6.2%}")
         mark = "  (MuJoCo's dcmotor)" if (bristle, damping) == ("explicit", "explicit") else ""
-        print(f"  bristle {bristle:10s} σ1·ż {damping:11s} {cells}{mark}")
+        print(f"  bristle {bristle:10s} σ1·ż {damping:11s} {'   '.join(cells)}{mark}")
 
     if args.paper:
         changes = paper_changes(n)

@@ -350,11 +350,14 @@ class SimulationParams:
         "rule, and the model raises the solver time constants backlash.stop_time_constant_s and "
         "friction.load_friction_time_constant_s to two of its physics steps where they are shorter (MuJoCo "
         "resolves none faster; 2.5e-4 s at the defaults, twice the default values). Measured at the defaults "
-        "against 'accurate' (benchmarks/README.md, 'Fidelity presets'): Plant.step <M1>x as fast, the locked "
-        "drivetrain mode <M2> %, the paper's figures up to <M3> %")
+        "against 'accurate' (benchmarks/README.md, 'Fidelity presets'): Plant.step 1.84-1.87x as fast, the locked "
+        "drivetrain mode +1.9 % (+3.6 % against h -> 0), the paper's figures up to 5.0 %; the hub chatters on its "
+        "backlash stop in the free fixture, so 'fast' is not fit for free-fixture runs")
     fast_substeps_per_tick: int = quantity(
         8, "1", "assumed: physics steps per control tick of substeps_rule = 'fast'; 8 is what max_omega_dt "
-        "alone asks for in the locked fixture at the defaults (the free fixture asks for 7)", 1, 1000)
+        "alone asks for in the locked fixture at the defaults (the free fixture asks for 7). At 8 and 9 the free "
+        "fixture's hub chatters on its backlash stop under the admittance controller, at 10 and 12 it does not "
+        "(benchmarks/README.md, 'Fidelity presets')", 1, 1000)
 
 
 @dataclass(frozen=True)

@@ -33,7 +33,7 @@ import mujoco
 import numpy as np
 
 from benchmarks.bench_plant import best_rate
-from experiments.admittance import FAST_PUSH_S, SLOW_PUSH_S, run_push
+from experiments.admittance import run_admittance
 from experiments.paper import run_paper
 from models.gim8108_testbed.build import build_xml
 from models.gim8108_testbed.derived import derive
@@ -106,8 +106,7 @@ def stop_relaxation(fast_substeps: int | None = None) -> dict[str, dict[str, flo
         for _ in range(500):
             plant.step(limit)
         out[name] = {"full_torque_penetration": (abs(plant.backlash_angle_rad) - 0.5 * gap) / gap}
-        for push, push_s in (("slow", SLOW_PUSH_S), ("fast", FAST_PUSH_S)):
-            log = run_push(p, push_s, push, 0, None, False).log
+        for push, log in run_admittance(p, seed=0).logs().items():
             backlash, tau = np.abs(np.asarray(log["backlash_angle"])), np.asarray(log["tau_flexure"])
             out[name] |= {f"{push}_push_max_penetration": max(float(backlash.max()) - 0.5 * gap, 0.0) / gap,
                           f"{push}_push_tau_roughness_nm": float(np.sqrt(np.mean(np.diff(tau, 2) ** 2))),

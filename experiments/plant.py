@@ -135,7 +135,8 @@ def format_card(card: PlantCard) -> str:
     """The card as text tables."""
     lines = ["Parameters", f"{'name':44s} {'value':>12s}  {'unit':10s} source", "-" * 110]
     for name, row in card.parameters.items():
-        lines.append(f"{name:44s} {row['value']:12.6g}  {row['unit']:10s} {row['source']}")
+        value = f"{row['value']:>12s}" if isinstance(row["value"], str) else f"{row['value']:12.6g}"  # a choice
+        lines.append(f"{name:44s} {value}  {row['unit']:10s} {row['source']}")
     lines += ["", "Derived and simulated", f"{'quantity':44s} {'value':>12s}  unit", "-" * 70]
     for name, row in card.derived.items():
         lines.append(f"{name:44s} {row['value']:12.6g}  {row['unit']}")

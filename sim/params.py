@@ -21,6 +21,7 @@ from typing import Any
 from models.errors import ParameterError
 
 INF = math.inf
+SUBSTEPS_RULES = ("accurate", "fast")  # values of simulation.substeps_rule
 
 
 def range_text(low: float, high: float, *, low_open: bool = False) -> str:
@@ -35,6 +36,11 @@ def quantity(default: float, unit: str, source: str, low: float = -INF, high: fl
     """A dataclass field with unit, source and valid range ``[low, high]`` (``(low, high]`` if low_open)."""
     return field(default=default, metadata={"unit": unit, "source": source, "low": low, "high": high,
                                             "low_open": low_open})
+
+
+def choice(default: str, choices: tuple[str, ...], source: str) -> Any:
+    """A dataclass field that takes one of the strings ``choices`` (unit "1": a name, not a quantity)."""
+    return field(default=default, metadata={"unit": "1", "source": source, "choices": choices})
 
 
 @dataclass(frozen=True)
@@ -336,6 +342,22 @@ class SimulationParams:
         "advances the bristle state with the start-of-step velocity (explicit, first order); measured, this "
         "keeps the locked fixture's control-relevant mode within 2 % of its h -> 0 value "
         "(benchmarks/README.md)", 0.0, 1.0, low_open=True)
+    substeps_rule: str = choice(
+        "accurate", SUBSTEPS_RULES, "assumed: a speed/fidelity trade-off the user chooses. 'accurate': the "
+        "physics step of the whole rule, max_omega_dt and max_step_per_bristle_time (16 steps per 1 ms tick at "
+        "the defaults). 'fast': fast_substeps_per_tick steps per tick, or the rule's count if that is lower, "
+        "never fewer than max_omega_dt alone asks for (stability): it gives up the bristle-accuracy part of the "
+        "rule, and the model raises the solver time constants backlash.stop_time_constant_s and "
+        "friction.load_friction_time_constant_s to two of its physics steps where they are shorter (MuJoCo "
+        "resolves none faster; 2.5e-4 s at the defaults, twice the default values). Measured at the defaults "
+        "against 'accurate' (benchmarks/README.md, 'Fidelity presets'): Plant.step 1.84-1.87x as fast, the locked "
+        "drivetrain mode +1.9 % (+3.6 % against h -> 0), the paper's figures up to 5.0 %; the hub chatters on its "
+        "backlash stop in the free fixture, so 'fast' is not fit for free-fixture runs")
+    fast_substeps_per_tick: int = quantity(
+        8, "1", "assumed: physics steps per control tick of substeps_rule = 'fast'; 8 is what max_omega_dt "
+        "alone asks for in the locked fixture at the defaults (the free fixture asks for 7). At 8 and 9 the free "
+        "fixture's hub chatters on its backlash stop under the admittance controller, at 10 and 12 it does not "
+        "(benchmarks/README.md, 'Fidelity presets')", 1, 1000)
 
 
 @dataclass(frozen=True)
@@ -374,8 +396,12 @@ class TestbedParams:
 
 
 def field_range(params: TestbedParams, group: str, name: str) -> tuple[float, float]:
-    """The valid range [low, high] of ``group.name`` from its metadata (an open low end nudged inside)."""
+    """The valid range [low, high] of ``group.name`` from its metadata (an open low end nudged inside).
+
+    Raises ValueError for a field that takes one of a set of names (no range)."""
     f = next(f for f in dataclasses.fields(getattr(params, group)) if f.name == name)
+    if "choices" in f.metadata:
+        raise ValueError(f"{group}.{name} takes one of {f.metadata['choices']}, not a value in a range")
     low, high = f.metadata["low"], f.metadata["high"]
     if f.metadata["low_open"]:
         low = math.nextafter(low, math.inf)
@@ -386,6 +412,11 @@ def _validate_group(name: str, obj: Any) -> None:
     for f in dataclasses.fields(obj):
         value = getattr(obj, f.name)
         md = f.metadata
+        if "choices" in md:
+            if isinstance(value, str) and value in md["choices"]:
+                continue
+            raise ParameterError(f"{name}.{f.name} = {value!r}: valid values are "
+                                 f"{', '.join(repr(c) for c in md['choices'])}")
         expected = int if f.type in (int, "int") else float
         if isinstance(value, bool) or not isinstance(value, (int, float)) or (
                 expected is int and not isinstance(value, int)):

@@ -14,7 +14,8 @@ from typing import TYPE_CHECKING
 import mujoco
 
 from models.errors import ParameterError
-from models.gim8108_testbed.derived import FIXTURES, derive, physics_timestep
+from models.gim8108_testbed.derived import (FIXTURES, SOLVER_TIME_CONSTANTS, derive, physics_timestep,
+                                            solver_time_constants)
 
 if TYPE_CHECKING:
     from sim.params import TestbedParams
@@ -28,12 +29,9 @@ def _f(x: float) -> str:
     return f"{x:.9g}"
 
 
-# solref time constants of the model's constraint rows [s]: MuJoCo resolves none stiffer than two physics steps
-SOLVER_TIME_CONSTANTS = (("backlash", "stop_time_constant_s"), ("friction", "load_friction_time_constant_s"))
-
-
 def _longest_step_s(p: TestbedParams, fixtures) -> float:
-    return max(physics_timestep(p, fixture)[0] for fixture in fixtures)
+    """The longest physics step [s] of the accurate rule over ``fixtures`` (whatever simulation.substeps_rule)."""
+    return max(physics_timestep(p, fixture, "accurate")[0] for fixture in fixtures)
 
 
 def _step_lengthening_fields(p: TestbedParams, fixtures) -> list[str]:
@@ -57,7 +55,11 @@ def _step_lengthening_fields(p: TestbedParams, fixtures) -> list[str]:
 
 
 def check_time_constants(p: TestbedParams, fixtures=FIXTURES, source: str | None = None) -> None:
-    """Refuse solver time constants shorter than two physics steps of ``fixtures``.
+    """Refuse solver time constants shorter than two physics steps of the accurate rule in ``fixtures``.
+
+    The check does not depend on ``simulation.substeps_rule``: under 'fast' the model raises the time constants
+    to two of its own, longer steps (``derived.solver_time_constants``), so a parameter set passes for both rules
+    or for neither.
 
     Parameters
     ----------
@@ -85,8 +87,8 @@ def check_time_constants(p: TestbedParams, fixtures=FIXTURES, source: str | None
     n = round(p.simulation.control_period_s / h)
     names = " and ".join(f"{group}.{field} = {value:g} s" for group, field, value in low)
     step = (f"h = {h:.3g} s ({n} physics steps per {p.simulation.control_period_s:g} s control tick; "
-            f"models.gim8108_testbed.derived.physics_timestep: the stiffest mode of the drivetrain and the "
-            f"presliding time set it)")
+            f"models.gim8108_testbed.derived.physics_timestep, accurate rule: the stiffest mode of the drivetrain "
+            f"and the presliding time set it)")
     bound = f"valid range [{needed:g}, 1] s, as MuJoCo resolves no constraint faster than two physics steps"
     verb = "is" if len(low) == 1 else "are"
     drivers = _step_lengthening_fields(p, fixtures)
@@ -109,6 +111,7 @@ def build_xml(p: TestbedParams, fixture: str) -> str:
     d = derive(p)
     h, _ = physics_timestep(p, fixture)
     check_time_constants(p, (fixture,))
+    solref_s = solver_time_constants(p, fixture)
     n = p.motor.gear_ratio
     fr, fl, lever = p.friction, p.flexure, p.lever
     locked = fixture == "locked"
@@ -138,7 +141,7 @@ def build_xml(p: TestbedParams, fixture: str) -> str:
     <default class="visual"><geom group="1"/></default>
     <!-- Backlash stops: near-hard limits; solref/solimp tuned (sim.params.BacklashParams). -->
     <default class="backlash_stop">
-      <joint solreflimit="{_f(p.backlash.stop_time_constant_s)} 1" solimplimit="{_f(imp)} {_f(imp)} 0.001 0.5 2"/>
+      <joint solreflimit="{_f(solref_s["backlash", "stop_time_constant_s"])} 1" solimplimit="{_f(imp)} {_f(imp)} 0.001 0.5 2"/>
     </default>
   </default>
   <worldbody>
@@ -151,7 +154,7 @@ def build_xml(p: TestbedParams, fixture: str) -> str:
              moving body with positive inertia (same dynamics). -->
         <!-- frictionloss: the load-dependent gear friction, set every tick by sim.plant. -->
         <joint name="motor" type="hinge" axis="0 0 1" frictionloss="0"
-               solreffriction="{_f(fr.load_friction_time_constant_s)} 1"
+               solreffriction="{_f(solref_s["friction", "load_friction_time_constant_s"])} 1"
                solimpfriction="{_f(fr.load_friction_impedance)} {_f(fr.load_friction_impedance)} 0.001 0.5 2"/>
         <inertial pos="0 0 0" mass="{_f(p.motor.rotor_mass_kg)}"
                   diaginertia="{_f(0.5 * d.reflected_rotor_inertia_kgm2)} {_f(0.5 * d.reflected_rotor_inertia_kgm2)} {_f(d.reflected_rotor_inertia_kgm2)}"/>

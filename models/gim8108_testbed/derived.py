@@ -120,6 +120,8 @@ def derive(p: TestbedParams) -> Derived:
 
 
 FIXTURES = ("locked", "free")
+# solref time constants of the model's constraint rows [s]: MuJoCo resolves none stiffer than two physics steps
+SOLVER_TIME_CONSTANTS = (("backlash", "stop_time_constant_s"), ("friction", "load_friction_time_constant_s"))
 
 
 def lumped_modes_hz(p: TestbedParams, fixture: str, backlash_closed: bool, gear_stuck: bool = True) -> np.ndarray:
@@ -171,15 +173,62 @@ def substeps_by_rule(p: TestbedParams, fixture: str) -> dict[str, int]:
             "presliding": math.ceil(t_ctrl / (s.max_step_per_bristle_time * bristle_time_s))}
 
 
-def physics_timestep(p: TestbedParams, fixture: str) -> tuple[float, int]:
+def substeps_per_tick(p: TestbedParams, fixture: str, rule: str | None = None) -> int:
+    """Physics steps per control tick under ``rule`` (``simulation.substeps_rule`` if None).
+
+    ``accurate``: the smallest count that meets both parts of the rule (:func:`substeps_by_rule`).
+    ``fast``: ``simulation.fast_substeps_per_tick``, or the accurate count if that is lower, and never fewer
+    than the stability part (1) asks for; it gives up the presliding accuracy part (2).
+    """
+    rule = p.simulation.substeps_rule if rule is None else rule
+    parts = substeps_by_rule(p, fixture)
+    accurate = max(1, *parts.values())
+    if rule == "accurate":
+        return accurate
+    if rule == "fast":
+        return min(accurate, max(p.simulation.fast_substeps_per_tick, parts["modes"]))
+    raise ValueError(f"rule = {rule!r}: valid values are 'accurate', 'fast' (simulation.substeps_rule)")
+
+
+def physics_timestep(p: TestbedParams, fixture: str, rule: str | None = None) -> tuple[float, int]:
     """The physics step h [s] and substeps per control tick from the stated rule.
 
-    Rule: h = T_ctrl / n with the smallest integer n such that
+    Rule (``accurate``): h = T_ctrl / n with the smallest integer n such that
       (1) ω_max·h <= simulation.max_omega_dt, ω_max the stiffest mode of the lumped chain in any backlash
           or friction state (stability with margin for every mode), and
       (2) h <= simulation.max_step_per_bristle_time · σ1/σ0 (accuracy of the presliding dynamics, whose
           bristle state MuJoCo advances explicitly).
     The current loop is integrated exactly by MuJoCo (exponential update), so it does not bound h.
+    ``fast`` keeps (1) and drops (2) for ``simulation.fast_substeps_per_tick`` steps (:func:`substeps_per_tick`).
+
+    Parameters
+    ----------
+    p : TestbedParams
+        The parameter set.
+    fixture : {'locked', 'free'}
+        The fixture the step is for.
+    rule : {'accurate', 'fast'}, optional
+        The substep rule; ``p.simulation.substeps_rule`` if None.
+
+    Returns
+    -------
+    h : float
+        The physics step [s].
+    n : int
+        Physics steps per control tick.
     """
-    n = max(1, *substeps_by_rule(p, fixture).values())
+    n = substeps_per_tick(p, fixture, rule)
     return p.simulation.control_period_s / n, n
+
+
+def solver_time_constants(p: TestbedParams, fixture: str) -> dict[tuple[str, str], float]:
+    """The solref time constants [s] the model uses, by ``(group, field)`` of ``SOLVER_TIME_CONSTANTS``.
+
+    They are the parameters' values, except that under ``simulation.substeps_rule = 'fast'`` each is raised to
+    two of its physics steps where it is shorter (the defaults are two steps of the accurate rule, and MuJoCo
+    resolves no constraint faster than two steps). The parameters themselves are checked against the accurate
+    rule's step (``build.check_time_constants``), so a parameter set valid for one rule is valid for both.
+    """
+    floor_s = 2.0 * physics_timestep(p, fixture)[0] if p.simulation.substeps_rule == "fast" else 0.0
+    return {(group, name): max(getattr(getattr(p, group), name), floor_s)
+            for group, name in SOLVER_TIME_CONSTANTS}

@@ -251,7 +251,10 @@ def run_loop(plant: Plant, controller: Controller, n_ticks: int, *, measurements
         try:
             command = controller.step(obs)
         except KeyError as exc:
-            raise KeyError(f"the controller read {exc}, which this run does not observe; it observes "
+            missing = exc.args[0] if exc.args else None
+            if not isinstance(missing, str) or missing in obs:
+                raise
+            raise KeyError(f"the controller read {missing!r}, which this run does not observe; it observes "
                            f"{', '.join(sorted(obs))}") from exc
         if logged_units:
             logged[k] = controller.log_values()

@@ -280,7 +280,7 @@ def synth_log(experiment: str, truth: Rig, duration_s: float, seed: int, *,
                 measured += noise_tau[k - 1] if k else 0.0
             else:
                 measured = s["tau_current_estimate"]
-            return pi.step(ref, measured)
+            return pi.update(ref, measured)
 
     run = run_testbed(truth, command, n)
     c = run.columns

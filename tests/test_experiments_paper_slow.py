@@ -28,7 +28,7 @@ OUT_OF_BAND = {
     # peak, would force an RMS >= 0.10 N·m, above its 0.092); ours reaches +0.01 N·m.
     "0.1 N·m square 1 Hz, current feedback: peak error": 0.64,
     # backlash impacts at the zero crossings under sensor feedback: sqrt(2·F_net·gap·K) ≈ 0.25 N·m for the
-    # 0.5 mrad gap (0.6 N·m at the earlier 3.5 mrad); between impacts the low-torque sine tracks better than
+    # 0.5 mrad gap (0.6 N·m at 3.5 mrad); between impacts the low-torque sine tracks better than
     # the paper's (RMS 0.61x). The peak sits on the band's edge: 1.47 at seed 0, 1.32-1.56 over seeds 0-3, so it
     # stays listed (this list is not asserted figure by figure).
     "0.05 N·m sine 0.2 Hz, sensor feedback: RMS error": 0.61,

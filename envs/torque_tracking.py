@@ -115,7 +115,7 @@ class TorqueTrackingEnv(gym.Env):
     episode.
 
     ## Version History
-    * v0: initial version (torquebed issue 5).
+    * v0: initial version.
     """
 
     metadata = {"render_modes": [], "render_fps": 1000}

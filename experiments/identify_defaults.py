@@ -23,18 +23,18 @@ Grid (every value physically plausible):
 * motor.torque_saturation_per_nm: 0.0136 or 0.0176 (τ = τ_cmd/(1 + α|τ_cmd|): torque per ampere 12-15 % low
   at a 10 N·m command, 25-32 % at the current that delivers the 18 N·m peak: the droop of a compact outrunner
   driven to its peak current);
-* backlash.width_rad: 0.5 or 1.0 mrad (0.03°, 0.06°: a tight planetary). A first pass over 0.5, 1.0 and
-  3.5 mrad (0.2°, the earlier assumption) with the load loss at 0.1-0.2 and no torque droop ranked 3.5 mrad
+* backlash.width_rad: 0.5 or 1.0 mrad (0.03°, 0.06°: a tight planetary). A wider pass over 0.5, 1.0 and
+  3.5 mrad (0.2°) with the load loss at 0.1-0.2 and no torque droop ranks 3.5 mrad
   last in every combination: the impacts of crossing a wide dead band under sensor feedback make peak errors
   of 0.5 N·m where the paper has 0.03-0.08 N·m; with a load loss of 0.1-0.2 the sticking of the gear at the
-  crests of the 10 N·m sine doubled the sensor-feedback error (0.27-0.34 N·m against 0.152).
+  crests of the 10 N·m sine doubles the sensor-feedback error (0.27-0.34 N·m against 0.152).
 
 Not on the grid (each would double it): the LuGre presliding stiffness σ0, its damping ratio ζ and the
 Stribeck velocity keep their stated values (``sim.params``). They were varied one at a time against the same
-20 figures (docs/issue4_figures.md, "Mechanisms measured"): σ0 500 / 8000 N·m/rad (2000 kept) RMS |ln ratio|
-0.606 / 0.483 and Stribeck velocity 0.01 / 0.2 rad/s (0.05 kept) 0.612 / 0.534, against 0.428 for the
-defaults then, both breaking the 30-65 % step fractions; ζ 0.6-0.8 scored 0.384-0.388 but needs 20 physics
-steps per tick instead of 16 (25 % slower) and ζ 1 was kept for that reason, not for the fit.
+20 figures (docs/fidelity.md, "Alternatives measured"): σ0 500 / 8000 N·m/rad (2000 kept) RMS |ln ratio|
+0.606 / 0.483 and Stribeck velocity 0.01 / 0.2 rad/s (0.05 kept) 0.612 / 0.534, against 0.428 for that
+table's baseline, both breaking the 30-65 % step fractions; ζ 0.6-0.8 scores 0.384-0.388 but needs 20 physics
+steps per tick instead of 16 (25 % slower), so ζ 1 is kept for speed, not for the fit.
 
 Two measurement-protocol quantities the paper leaves out are inferred in closed form (not fitted):
 * load-cell reading noise (``loadcell.reading_noise_n`` in ``sim.params``): the flat sensor-feedback step

@@ -13,6 +13,7 @@ fixture) and the backlash reversal (locked fixture), as they ran for the card (n
 from __future__ import annotations
 
 import argparse
+import textwrap
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -47,6 +48,7 @@ from sim.runlog import RunLog
 PAPER_FLEXURE_MODE_ESTIMATE_HZ = 5975.0  # paper Sec. II, sqrt(k_z/J_z)/2π
 PAPER_FLEXURE_MODE_FEA_HZ = 3407.0  # paper Sec. II and Table II, SolidWorks first mode
 LOCKED_PRELOAD_NM = 1.0  # closes the backlash for the locked fixture's linearisation
+CARD_WIDTH = 160  # characters per line of the printed card (sources wrap)
 
 
 @dataclass(frozen=True)
@@ -132,11 +134,13 @@ def run_plant_card(params: TestbedParams | None = None, *, keep_logs: bool = Fal
 
 
 def format_card(card: PlantCard) -> str:
-    """The card as text tables."""
+    """The card as text tables, no line longer than :data:`CARD_WIDTH` characters (sources wrap)."""
     lines = ["Parameters", f"{'name':44s} {'value':>12s}  {'unit':10s} source", "-" * 110]
     for name, row in card.parameters.items():
         value = f"{row['value']:>12s}" if isinstance(row["value"], str) else f"{row['value']:12.6g}"  # a choice
-        lines.append(f"{name:44s} {value}  {row['unit']:10s} {row['source']}")
+        head = f"{name:44s} {value}  {row['unit']:10s} "
+        source = textwrap.wrap(row["source"], CARD_WIDTH - len(head), break_on_hyphens=False) or [""]
+        lines += [head + source[0]] + [" " * len(head) + rest for rest in source[1:]]
     lines += ["", "Derived and simulated", f"{'quantity':44s} {'value':>12s}  unit", "-" * 70]
     for name, row in card.derived.items():
         lines.append(f"{name:44s} {row['value']:12.6g}  {row['unit']}")

@@ -117,16 +117,16 @@ BASELINE_RANGES: dict[tuple[str, str], tuple[float, float]] = {
     # N·m·s/rad: the assumed 0.02 N·m·s/rad of sim.params, halved to doubled
     ("friction", "viscous_nms_per_rad"): (0.01, 0.04),
     # [1] 1 - η of one planetary stage of catalogue efficiency 0.85-0.98 (identify_defaults: 0.03, 0.05;
-    # sim.params default 0.05, before 2026-11-23 0.1)
+    # sim.params default 0.05)
     ("friction", "load_friction_coefficient"): (0.02, 0.15),
     # 1/(N·m): the whole valid range of sim.params; sim.plant applies it (sim.motor_torque) and the surrogate
     # carries it as a constant of the rig, so a baseline with any value must come out clean
     ("motor", "torque_saturation_per_nm"): field_range(TestbedParams(), "motor", "torque_saturation_per_nm"),
-    # rad: 0.5 mrad (identify_defaults' grid-best, the sim.params default) to 3.5 mrad (0.2°, the default before)
+    # rad: 0.5 mrad (identify_defaults' grid-best, the sim.params default) to 3.5 mrad (0.2°, a looser stage)
     ("backlash", "width_rad"): (0.5e-3, 3.5e-3),
 }
-# the parameter set experiments/identify_defaults.py prefers against the paper's Tables VI-VII; the sim.params
-# defaults since 2026-11-23, kept explicit so its tests still hold it if the defaults move again
+# the parameter set experiments/identify_defaults.py prefers against the paper's Tables VI-VII (the sim.params
+# defaults), kept explicit so its tests still hold it if the defaults move
 GRID_BEST_OVERRIDES: dict[str, dict[str, float]] = {
     "friction": {"coulomb_torque_nm": 0.09, "load_friction_coefficient": 0.05},
     "motor": {"torque_saturation_per_nm": 0.0176}, "backlash": {"width_rad": 0.5e-3}}

@@ -11,7 +11,7 @@ so the estimate (linear in the current) over-reports by τ_cmd - τ_delivered. T
 flattens towards 1/α without a maximum, so the motor reaches the paper's peak torque (motor.peak_torque_nm,
 18 N·m, Sec. II) at a finite current: the driver's current limit is the command that delivers that peak,
 ``command_limit_nm``. (A quadratic droop τ_cmd·(1 - β|τ_cmd|) with the same droop at 10 N·m peaks at
-1/(4β) = 16.7 N·m and cannot reach 18 N·m: docs/issue4_figures.md, Session 14.)
+1/(4β) = 16.7 N·m and cannot reach 18 N·m: models/gim8108_testbed/README.md, Derivations.)
 
 Written here rather than in the MJCF because MuJoCo's ``dcmotor`` has one torque constant (``motorconst`` may
 differ from the back-EMF constant, but not vary with current): :class:`sim.plant.Plant` maps the command with

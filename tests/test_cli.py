@@ -15,7 +15,7 @@ def run(*args: str) -> subprocess.CompletedProcess:
 
 
 def test_plant_card_prints_the_tables_and_writes_the_json(tmp_path):
-    """experiments.plant: parameter table, derived quantities, the JSON keys the issue fixes, and its figure."""
+    """experiments.plant: parameter table, derived quantities, the card's JSON keys, and its figure."""
     out = tmp_path / "card.json"
     result = run("experiments.plant", "--json", str(out), "--plot", str(tmp_path))
     assert result.returncode == 0, result.stderr
@@ -23,6 +23,10 @@ def test_plant_card_prints_the_tables_and_writes_the_json(tmp_path):
     assert "flexure_stiffness" in result.stdout and "paper: 5975 Hz estimate, 3407 Hz FEA" in result.stdout
     card = json.loads(out.read_text())
     assert set(card["parameters"]["friction.breakaway_torque_nm"]) == {"value", "unit", "source"}
+    printed = result.stdout.splitlines()
+    assert max(len(line) for line in printed) <= 160  # sources wrap
+    longest = max(card["parameters"].values(), key=lambda row: len(row["source"]))["source"]
+    assert len(longest) > 160 - 70 and longest in " ".join(line.strip() for line in printed)  # wrapped, not cut
     for key, unit in [("flexure_stiffness", "N·m/rad"), ("flexure_youngs_modulus", "Pa"),
                       ("flexure_shear_modulus", "Pa"), ("breakaway_torque_measured", "N·m"),
                       ("backlash_width_measured", "rad")]:

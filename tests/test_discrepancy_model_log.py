@@ -86,11 +86,11 @@ def test_a_hidden_baseline_effect_is_measured_against_the_model_log():
         truth.effects["coulomb_friction"]["coulomb"], rel=0.05)
 
 
-# The held-out replay of a baseline log, each 0.5 s window started from the state the log measures. Before the
-# window start took the bristle state the measured motion implies, the drive's past commands and (locked) the
-# lever and hub placed by the load cell with the hub pressed into its stop, it missed the model's own 10 s logs
-# by 0.140 N·m (locked), 0.032 rad (free) and 0.084 N·m (closed loop) RMS; now by 0.008, 0.0002 and 0.005 (seeds
-# 31 and 32; this test runs seed 31), the load cell's noise in the locked logs.
+# The held-out replay of a baseline log, each 0.5 s window started from the state the log measures: the bristle
+# state the measured motion implies, the drive's past commands and (locked) the lever and hub placed by the load
+# cell with the hub pressed into its stop. It misses the model's own 10 s logs by 0.008 N·m (locked), 0.0002 rad
+# (free) and 0.005 N·m (closed loop) RMS (seeds 31 and 32; this test runs seed 31), the load cell's noise in the
+# locked logs; a window started without that state misses them by 0.140 N·m, 0.032 rad and 0.084 N·m.
 REPLAY_OWN_LOG_BOUND = {"locked": 0.015, "free": 0.002, "locked_pi_sensor": 0.015}  # [N·m | rad]
 
 

@@ -1,11 +1,12 @@
 """The paper's Tables VI-VII and Sec. V behaviours from the default parameters (slow: ~1-2 min).
 
-Run with ``python -m pytest -m slow``. The tolerance is the issue's: every figure within a factor 1.5 of the
+Run with ``python -m pytest -m slow``. The tolerance: every figure within a factor 1.5 of the
 paper. The assertion messages list every row beside the paper's value, so a failure shows which figures
 are off and by how much.
 
 The target is not met yet: ``OUT_OF_BAND`` names the figures still outside a factor 1.5 with the default
-parameters (seed 0) and why (docs/issue4_figures.md: what the paper's numbers imply, what was tried). They are not excused: the full target is a strict expected failure (it turns
+parameters (seed 0) and why (docs/fidelity.md: each residual and what would settle it). They are not
+excused: the full target is a strict expected failure (it turns
 into an error the day it passes, so this list gets emptied), and every other figure must stay in the band.
 """
 
@@ -27,7 +28,7 @@ OUT_OF_BAND = {
     # peak, would force an RMS >= 0.10 N·m, above its 0.092); ours reaches +0.01 N·m.
     "0.1 N·m square 1 Hz, current feedback: peak error": 0.64,
     # backlash impacts at the zero crossings under sensor feedback: sqrt(2·F_net·gap·K) ≈ 0.25 N·m for the
-    # 0.5 mrad gap (0.6 N·m at the earlier 3.5 mrad); between impacts the low-torque sine tracks better than
+    # 0.5 mrad gap (0.6 N·m at 3.5 mrad); between impacts the low-torque sine tracks better than
     # the paper's (RMS 0.61x). The peak sits on the band's edge: 1.47 at seed 0, 1.32-1.56 over seeds 0-3, so it
     # stays listed (this list is not asserted figure by figure).
     "0.05 N·m sine 0.2 Hz, sensor feedback: RMS error": 0.61,
@@ -71,7 +72,7 @@ LISTED_RATIO_TOLERANCE = 0.10
 
 def test_figures_outside_the_band_stay_where_they_were_measured(paper_result):
     """Each OUT_OF_BAND figure is within 10 % of its recorded ratio: a listed figure cannot get worse (or
-    better) unnoticed; a change means re-measuring it and updating the list and docs/issue4_figures.md."""
+    better) unnoticed; a change means re-measuring it and updating the list and docs/fidelity.md."""
     rows = {r["quantity"]: r["ratio"] for r in _table_rows(paper_result)}
     moved = []
     for key, recorded in OUT_OF_BAND.items():
@@ -81,7 +82,7 @@ def test_figures_outside_the_band_stay_where_they_were_measured(paper_result):
     assert not moved, "listed figures moved:\n" + "\n".join(moved)
 
 
-@pytest.mark.xfail(strict=True, reason="the figures of OUT_OF_BAND are still outside a factor 1.5 (issue 4)")
+@pytest.mark.xfail(strict=True, reason="the figures of OUT_OF_BAND are still outside a factor 1.5 (docs/fidelity.md)")
 def test_every_motor_experiment_figure_is_within_a_factor_1_5_of_the_paper(paper_result):
     """Tables VI-VII: sim / paper in [1/1.5, 1.5] for every RMS and peak error, both feedbacks."""
     rows = _table_rows(paper_result)
@@ -96,7 +97,7 @@ def test_the_papers_behaviours_are_reproduced_except_those_listed(paper_result):
     assert not missing, "not reproduced:\n" + "\n".join(missing)
 
 
-@pytest.mark.xfail(strict=True, reason="the behaviours of NOT_REPRODUCED are not reproduced yet (issue 4)")
+@pytest.mark.xfail(strict=True, reason="the behaviours of NOT_REPRODUCED are not reproduced (docs/fidelity.md)")
 def test_every_behaviour_of_the_paper_is_reproduced(paper_result):
     missing = [b.claim for b in paper_result.behaviours if not b.reproduced]
     assert not missing, "not reproduced:\n" + "\n".join(missing)

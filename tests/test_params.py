@@ -20,6 +20,13 @@ def test_every_parameter_has_unit_source_and_a_default_inside_its_range():
             name, source)
 
 
+def test_every_source_says_where_its_value_comes_from_in_at_most_300_characters():
+    """A source is one or two sentences; longer derivations live in the model README (its Derivations)."""
+    for name, _value, _unit, source in TestbedParams().rows():
+        assert source.strip(), name
+        assert len(source) <= 300, (name, len(source))
+
+
 def test_toml_override_applies_and_leaves_the_file_untouched(tmp_path):
     """A TOML file overrides fields by [group] and is only read."""
     path = tmp_path / "rig.toml"

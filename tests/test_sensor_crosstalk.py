@@ -3,7 +3,7 @@
 The calibration (:func:`sensor.evaluation.calibrate`) sees the T_x/T_y moment records, so it nulls every
 deterministic tilt response of the channels; what the crosstalk figure then measures is the largest noise
 excursion of the calibrated output over the moment test. Without the moment records (a T_z-only fit) the tilt
-response is left uncancelled. These tests pin both facts (docs/issue3_figures.md explains why the figure stays
+response is left uncancelled. These tests pin both facts (docs/fidelity.md explains why the figure stays
 below the paper's 0.148 / 0.126 % FS).
 """
 

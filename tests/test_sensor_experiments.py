@@ -13,7 +13,7 @@ from sensor.photoreflector import draw_unit
 from sensor.readout import factory_calibration
 from sim.params import TestbedParams
 
-MIN_QP_GAIN = 1.5  # issue 3: the QP's resolution gain over LS must be at least 1.5x across seeds and units
+MIN_QP_GAIN = 1.5  # the QP's resolution gain over LS the tests require across seeds and units (paper: 2.14x)
 
 
 @pytest.mark.parametrize("seed", range(20))
@@ -47,7 +47,7 @@ def _random_sensor(rng: np.random.Generator) -> TestbedParams:
 def test_qp_resolution_gain_holds_for_random_sensor_parameter_sets(draw):
     """Sensor parameter sets drawn at random within the documented plausible ranges (``_random_sensor``) keep
     LS std / QP std >= 1.5 (measured 1.64-6.98 over these 20). Not a proof for the whole box: 17 of 500 other
-    draws gave 1.10-1.5, most with the largest slip fraction above 1.8 % (docs/issue3_figures.md)."""
+    draws gave 1.10-1.5, most with the largest slip fraction above 1.8 % (docs/fidelity.md)."""
     params = _random_sensor(np.random.default_rng(500 + draw))
     ls_std, qp_std = resolution_gain(params, draw)
     assert ls_std / qp_std >= MIN_QP_GAIN

@@ -5,7 +5,7 @@ chamber record over the one-hour tests' temperature range. Without noise, the sa
 calibration applied to the channels' ideal voltages at zero twist, V_k(T) = g_k(T) V0_k: the figure must agree
 with it to within the fit's error. The slope is a property of the unit (how the calibration's channel weights
 cancel the common optical temperature coefficient), which is why it differs by more than 10x between units
-(docs/issue3_figures.md).
+(docs/fidelity.md).
 """
 
 import numpy as np

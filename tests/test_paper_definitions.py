@@ -23,12 +23,17 @@ level ``c_j`` the ascending and descending branch errors ``a_j``, ``d_j`` are me
   ±25 N·m, and tends to 8/3 for many equally spaced levels;
 * hysteresis as the full branch difference is ``max |a_j - d_j| <= 2 E`` (as half of it, ``<= E``);
 * repeatability as the range of per-cycle errors at one level and branch is ``<= 2 E``;
-* the RMS error is ``<= E`` (in N·m, so it bounds the full scale of the max error from below).
+* the RMS error is ``<= E`` (in N·m, so it bounds the full scale of the max error from below);
+* if the calibration itself is least squares with an offset (Eq. 11) fitted on the same samples, its residual
+  has mean 0 and is orthogonal to ``tau_hat``, so the least-squares line of ``tau_hat`` on ``tau`` has slope
+  ``1 - RMS^2 / var(tau)``: that line is the ideal line to within ``RMS^2 max|tau - mean| / var(tau)`` (about
+  1e-4 N·m for Table III's RMS over ±25 N·m), and the first bound applies to it.
 
 Table III's nonlinearity is 1.34 times its max error. No line of the first kind allows that on the same samples
 at the same full scale, whatever the full scale, so the figures are consistent only if the nonlinearity line is
-a least-squares fit over four or more levels (which :func:`sensor.metrics.nonlinearity` uses) or a terminal
-line, or if the nonlinearity is normalised by a full scale of at most 60 N·m while the max error keeps 80 N·m,
+a least-squares fit over four or more levels (which :func:`sensor.metrics.nonlinearity` uses) to the output of a
+calibration that is not itself a least-squares fit to those samples (the paper's QP, Eq. 17, is not), or a
+terminal line, or if the nonlinearity is normalised by a full scale of at most 60 N·m while the max error keeps 80 N·m,
 e.g. the 50 N·m span of the ±25 N·m calibration. The other figures fit every reading above except hysteresis
 as a half difference, and the RMS error rules out the 25 N·m calibrated range as the max error's full scale.
 
@@ -43,7 +48,7 @@ import pytest
 from scipy.optimize import linprog
 
 from sensor import metrics as m
-from sensor.calibration import FS_NM
+from sensor.calibration import FS_NM, fit_least_squares
 from sensor.protocol import CALIBRATION_LEVELS_NM
 
 # Paper figures as printed and the interval each rounds from (half a unit in the last digit).
@@ -126,6 +131,27 @@ def test_every_metric_is_bounded_by_the_max_error_on_the_same_samples():
         assert rep <= 2 * e + SLACK_NM
         worst = np.maximum(worst, np.array([nl, terminal, hyst, rep]) / e)
     assert np.all(worst > 1.0), worst
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_least_squares_calibration_puts_its_least_squares_line_on_the_ideal_line(seed):
+    """Calibrated by least squares (Eq. 11, offset in the basis) on the samples it is evaluated on, the residual
+    e = tau_hat - tau has mean 0 and sum(e tau_hat) = 0, so the least-squares line of tau_hat on tau has slope
+    1 - RMS^2 / var(tau) exactly, and nonlinearity <= E + RMS^2 max|tau - mean| / var(tau): with that calibration
+    Table III's nonlinearity > max error would not fit the least-squares reading either."""
+    rng = np.random.default_rng(seed)
+    shape = (4, 2, LEVELS_NM.size)
+    ref, _, direction, _ = _samples(np.zeros(shape))
+    gain, curve, loop = rng.uniform(0.024, 0.04, 8), rng.uniform(-4e-5, 4e-5, 8), rng.uniform(0, 2e-3, 8)
+    volts = (1.65 + np.outer(ref, gain) + np.outer(ref**2, curve) + np.outer(direction * (1 - np.abs(ref) / 25), loop)
+             + rng.normal(0.0, 3e-4, (ref.size, 8)))  # eight channels: gain, curvature, a loop, noise [V]
+    hat = fit_least_squares(volts, ref).predict(volts)
+    acc = m.error_metrics(hat, ref)
+    centred = ref - ref.mean()
+    tilt = acc.rms_error_nm**2 / np.mean(centred**2)
+    nl = m.nonlinearity(ref, hat, direction, bin_edges_nm=EDGES_NM)
+    assert 1 - nl.slope == pytest.approx(tilt, rel=1e-6)
+    assert nl.max_deviation_nm <= acc.max_error_nm + tilt * np.max(np.abs(centred)) + SLACK_NM
 
 
 def test_least_squares_line_gain_has_the_derived_values():

@@ -214,3 +214,27 @@ def test_paper_rms_error_rules_out_the_calibrated_range_as_full_scale_of_the_max
     """RMS <= max error needs FS >= 0.0266 N·m / 0.0830 % = 32 N·m: 80 and 50 N·m fit, the 25 N·m range does not."""
     smallest_fs_nm = _low(RMS_ERROR_NM) / (_high(MAX_ERROR_PCT_FS) / 100)
     assert max(CALIBRATION_LEVELS_NM) < smallest_fs_nm < CALIBRATION_SPAN_NM < FS_NM
+
+
+def test_paper_table_vii_reductions_are_ratios_of_sensor_to_current_error():
+    """Sec. V-B: "the RMS error decreases by 29.9 %, 47.2 %, and 12.6 % ... the peak error decreases by 59.6 %,
+    55.9 %, and 18.8 %": each is the sensor-feedback figure over the current-feedback one (Table VII), i.e. the
+    error decreases *to* that share, not by it."""
+    current = {"rms": (0.0685, 0.0924, 1.2022), "peak": (0.0505, 0.1426, 2.2611)}
+    sensor = {"rms": (0.0205, 0.0436, 0.1520), "peak": (0.0301, 0.0797, 0.4244)}
+    stated_pct = {"rms": (29.9, 47.2, 12.6), "peak": (59.6, 55.9, 18.8)}
+    for kind, pcts in stated_pct.items():
+        for pct, s, c in zip(pcts, sensor[kind], current[kind], strict=True):
+            assert 100 * s / c == pytest.approx(pct, abs=0.06)
+            assert 100 * (1 - s / c) != pytest.approx(pct, abs=5)
+
+
+def test_paper_table_vi_factors_and_resolution_follow_their_stated_definitions():
+    """Sec. V-A: sensor-feedback RMS is 0.079x, 0.046x, 0.036x the current-feedback one (Table VI); Sec. IV-B:
+    3-sigma resolution = 3 x std (0.0160 -> 0.0480, 0.00746 -> 0.0224 N·m) and the 2.14x improvement."""
+    for factor, s, c in zip((0.079, 0.046, 0.036), (0.0026, 0.0026, 0.0025), (0.0329, 0.0566, 0.0685), strict=True):
+        assert s / c == pytest.approx(factor, abs=0.0006)
+    std_nm, resolution_nm = {"ls": 0.0160, "qp": 0.00746}, {"ls": 0.0480, "qp": 0.0224}
+    for method, std in std_nm.items():
+        assert 3 * std == pytest.approx(resolution_nm[method], abs=5e-5)
+    assert resolution_nm["ls"] / resolution_nm["qp"] == pytest.approx(2.14, abs=0.005)

@@ -1,6 +1,6 @@
 """The paper's Table III-IV sensor figures checked against each other under its own definitions.
 
-The figures (Sec. IV-B), z-axis torque:
+The figures (Sec. III-B, "Sensor Evaluation"), z-axis torque:
 
 * Table III, "Error Analysis, Nonlinearity and Hysteresis": max percentage error 0.0830 % FS, RMS error
   0.0266 N·m, nonlinearity 0.111 % FS, hysteresis 0.139 % FS.
@@ -57,7 +57,7 @@ RMS_ERROR_NM = (0.0266, 0.00005)  # Table III
 NONLINEARITY_PCT_FS = (0.111, 0.0005)  # Table III (Fig. 7(c): 0.1106)
 HYSTERESIS_PCT_FS = (0.139, 0.0005)  # Table III (Fig. 7(d): 0.1389)
 REPEATABILITY_PCT_FS = (0.0849, 0.00005)  # Table IV
-CALIBRATION_SPAN_NM = 2 * max(CALIBRATION_LEVELS_NM)  # ±25 N·m, Sec. IV-B: 50 N·m
+CALIBRATION_SPAN_NM = 2 * max(CALIBRATION_LEVELS_NM)  # ±25 N·m (Sec. III-B): a 50 N·m span
 
 LEVELS_NM = np.array(sorted({0.0, *CALIBRATION_LEVELS_NM, *(-x for x in CALIBRATION_LEVELS_NM)}))
 EDGES_NM = np.append(LEVELS_NM - np.diff(LEVELS_NM)[0] / 2, LEVELS_NM[-1] + np.diff(LEVELS_NM)[0] / 2)  # bin per level
@@ -217,9 +217,9 @@ def test_paper_rms_error_rules_out_the_calibrated_range_as_full_scale_of_the_max
 
 
 def test_paper_table_vii_reductions_are_ratios_of_sensor_to_current_error():
-    """Sec. V-B: "the RMS error decreases by 29.9 %, 47.2 %, and 12.6 % ... the peak error decreases by 59.6 %,
-    55.9 %, and 18.8 %": each is the sensor-feedback figure over the current-feedback one (Table VII), i.e. the
-    error decreases *to* that share, not by it."""
+    """Sec. IV-B ("Sinusoidal Tracking Test"): "the RMS error decreases by 29.9 %, 47.2 %, and 12.6 % ... the
+    peak error decreases by 59.6 %, 55.9 %, and 18.8 %": each is the sensor-feedback figure over the
+    current-feedback one (Table VII), i.e. the error decreases *to* that share, not by it."""
     current = {"rms": (0.0685, 0.0924, 1.2022), "peak": (0.0505, 0.1426, 2.2611)}
     sensor = {"rms": (0.0205, 0.0436, 0.1520), "peak": (0.0301, 0.0797, 0.4244)}
     stated_pct = {"rms": (29.9, 47.2, 12.6), "peak": (59.6, 55.9, 18.8)}
@@ -230,8 +230,9 @@ def test_paper_table_vii_reductions_are_ratios_of_sensor_to_current_error():
 
 
 def test_paper_table_vi_factors_and_resolution_follow_their_stated_definitions():
-    """Sec. V-A: sensor-feedback RMS is 0.079x, 0.046x, 0.036x the current-feedback one (Table VI); Sec. IV-B:
-    3-sigma resolution = 3 x std (0.0160 -> 0.0480, 0.00746 -> 0.0224 N·m) and the 2.14x improvement."""
+    """Sec. IV-A ("Step-Reference Tracking Test"): sensor-feedback RMS is 0.079x, 0.046x, 0.036x the
+    current-feedback one (Table VI); Sec. III-B: 3-sigma resolution = 3 x std (0.0160 -> 0.0480,
+    0.00746 -> 0.0224 N·m) and the 2.14x improvement."""
     for factor, s, c in zip((0.079, 0.046, 0.036), (0.0026, 0.0026, 0.0025), (0.0329, 0.0566, 0.0685), strict=True):
         assert s / c == pytest.approx(factor, abs=0.0006)
     std_nm, resolution_nm = {"ls": 0.0160, "qp": 0.00746}, {"ls": 0.0480, "qp": 0.0224}

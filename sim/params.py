@@ -343,21 +343,13 @@ class SimulationParams:
         "keeps the locked fixture's control-relevant mode within 2 % of its h -> 0 value "
         "(benchmarks/README.md)", 0.0, 1.0, low_open=True)
     substeps_rule: str = choice(
-        "accurate", SUBSTEPS_RULES, "assumed: a speed/fidelity trade-off the user chooses. 'accurate': the "
-        "physics step of the whole rule, max_omega_dt and max_step_per_bristle_time (16 steps per 1 ms tick at "
-        "the defaults). 'fast': fast_substeps_per_tick steps per tick, or the rule's count if that is lower, "
-        "never fewer than max_omega_dt alone asks for (stability): it gives up the bristle-accuracy part of the "
-        "rule, and the model raises the solver time constants backlash.stop_time_constant_s and "
-        "friction.load_friction_time_constant_s to two of its physics steps where they are shorter (MuJoCo "
-        "resolves none faster; 2.5e-4 s at the defaults, twice the default values). Measured at the defaults "
-        "against 'accurate' (benchmarks/README.md, 'Fidelity presets'): Plant.step 1.84-1.87x as fast, the locked "
-        "drivetrain mode +1.9 % (+3.6 % against h -> 0), the paper's figures up to 5.0 %; the hub chatters on its "
-        "backlash stop in the free fixture, so 'fast' is not fit for free-fixture runs")
+        "accurate", SUBSTEPS_RULES, "assumed: a speed/fidelity trade-off the user chooses. 'accurate': the step of "
+        "max_omega_dt and max_step_per_bristle_time. 'fast': fast_substeps_per_tick steps, solver time constants "
+        "raised to two steps, joint damping explicit (benchmarks/README.md, 'Fidelity presets')")
     fast_substeps_per_tick: int = quantity(
-        8, "1", "assumed: physics steps per control tick of substeps_rule = 'fast'; 8 is what max_omega_dt "
-        "alone asks for in the locked fixture at the defaults (the free fixture asks for 7). At 8 and 9 the free "
-        "fixture's hub chatters on its backlash stop under the admittance controller, at 10 and 12 it does not "
-        "(benchmarks/README.md, 'Fidelity presets')", 1, 1000)
+        8, "1", "assumed: physics steps per control tick under substeps_rule = 'fast' (fewer if the rule asks for "
+        "fewer, never fewer than max_omega_dt asks for); 8 is what max_omega_dt alone asks for in the locked "
+        "fixture at the defaults", 1, 1000)
 
 
 @dataclass(frozen=True)

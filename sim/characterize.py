@@ -189,12 +189,12 @@ def free_vibration_peak_hz(plant: Plant, *, duration_s: float = 2.0, kick_joint:
 STOP_LOADED_NM = 0.05
 
 
-def settle_against_stop(params: TestbedParams | None = None, torque_nm: float = 0.5,
-                        duration_s: float = 0.6) -> RunLog:
-    """Free fixture from rest, the gap centred: the motor pushes with ``torque_nm`` [N·m] and a hand holds the
-    lever with ``-torque_nm``, so the gear crosses the gap, strikes the hub and the chain comes to rest with
-    the hub pressed on its stop. Returns the run log (every tick)."""
-    plant = Plant(params, "free")
+def settle_against_stop(plant: Plant, torque_nm: float = 0.5, duration_s: float = 0.6) -> RunLog:
+    """From ``plant``'s state (free fixture; from rest with the gap centred after a reset) the motor pushes with
+    ``torque_nm`` [N·m] and a hand holds the lever with ``-torque_nm``, so the gear crosses the gap, strikes the
+    hub and the chain comes to rest with the hub pressed on its stop. Returns the run log (every tick)."""
+    if plant.fixture != "free":
+        raise ValueError(f"plant.fixture = {plant.fixture!r}: the hub settles against its stop in the 'free' fixture")
     n = round(duration_s / plant.params.simulation.control_period_s)
     return run_open_loop(plant, np.full(n, torque_nm), np.full(n, -torque_nm), progress=False)
 

@@ -176,7 +176,7 @@ def test_the_hub_comes_to_rest_against_its_stop(params):
     From 0.3 s on the lever's and the hub's velocities are no larger than their peaks decayed by the lever
     ringing's physical damping, exp(-σ·0.3 s) = 2e-7 at the defaults. A hub that chatters on its stop keeps
     both at tenths of a rad/s."""
-    log = settle_against_stop(params, torque_nm=0.5, duration_s=0.6)
+    log = settle_against_stop(Plant(params, "free"), torque_nm=0.5, duration_s=0.6)
     time_s, qd, rate = np.asarray(log["time"]), np.asarray(log["qd"]), backlash_rate_rad_s(log)
     decay = math.exp(-lever_ringing_decay_rate_per_s(params) * 0.3)
     late = time_s >= 0.3

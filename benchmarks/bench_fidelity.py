@@ -40,8 +40,15 @@ from experiments.admittance import run_admittance
 from experiments.paper import run_paper
 from models.gim8108_testbed.build import build_xml
 from models.gim8108_testbed.derived import derive
-from sim.characterize import (Mode, backlash_rate_rad_s, free_vibration_peak_hz, linearizable_plant, linearized_modes,
-                              settle_against_stop, stop_loaded)
+from sim.characterize import (
+    Mode,
+    backlash_rate_rad_s,
+    free_vibration_peak_hz,
+    linearizable_plant,
+    linearized_modes,
+    settle_against_stop,
+    stop_loaded,
+)
 from sim.motor_torque import CurrentToTorqueMap
 from sim.params import TestbedParams
 from sim.plant import Plant

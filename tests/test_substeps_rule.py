@@ -11,8 +11,7 @@ from experiments import step
 from experiments.admittance import run_admittance
 from models.gim8108_testbed.build import build_model, build_xml, check_time_constants, reference_xml_path
 from models.gim8108_testbed.derived import FIXTURES, derive, physics_timestep, solver_time_constants
-from sim.characterize import (backlash_rate_rad_s, linearizable_plant, linearized_modes, settle_against_stop,
-                              stop_loaded)
+from sim.characterize import backlash_rate_rad_s, linearizable_plant, linearized_modes, settle_against_stop, stop_loaded
 from sim.discrepancy.rig import load_rig, save_rig
 from sim.params import ParameterError, TestbedParams, load_params
 from sim.plant import Plant

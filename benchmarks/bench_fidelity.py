@@ -9,9 +9,12 @@ Prints, for the default parameters under each rule:
 (b) the locked fixture's linearised modes under a 1 N·m preload (``sim.characterize.linearized_modes``): the
     drivetrain mode, and the lightly damped lever mode (the lever between flexure and load cell) with its
     free-vibration peak, under both rules and at a 16x finer step than accurate (the h -> 0 reference);
-(c) what 'fast' relaxes at the backlash stops: the stop's penetration at the driver's limit (locked), and in
-    the admittance experiment's slow push (free fixture) the deepest penetration and the tick-to-tick
-    roughness of the flexure torque (RMS of its second difference);
+(c) what 'fast' relaxes at the backlash stops: the stop's penetration at the driver's limit (locked); the
+    free fixture's hub settled on its stop (``sim.characterize.settle_against_stop``); in the admittance
+    experiment's pushes the deepest penetration, the tick-to-tick roughness of the flexure torque (RMS of its
+    second difference) and, while the stop is loaded, the hub's velocity against the gear beside the bound
+    the stop's compliance sets; (c') the same settling and the locked lever ringing's damping under 'fast' at
+    8-16 substeps with Euler's joint damping implicit and explicit;
 (d) what MuJoCo would need for 8 substeps: the drivetrain mode at 8 and 16 substeps with the presliding
     friction integrated six ways (see :func:`presliding_scheme_mode`);
 (e) with ``--paper``: every figure of ``experiments.paper`` under both rules, its relative change, the
@@ -37,7 +40,15 @@ from experiments.admittance import run_admittance
 from experiments.paper import run_paper
 from models.gim8108_testbed.build import build_xml
 from models.gim8108_testbed.derived import derive
-from sim.characterize import Mode, free_vibration_peak_hz, linearizable_plant, linearized_modes
+from sim.characterize import (
+    Mode,
+    backlash_rate_rad_s,
+    free_vibration_peak_hz,
+    linearizable_plant,
+    linearized_modes,
+    settle_against_stop,
+    stop_loaded,
+)
 from sim.motor_torque import CurrentToTorqueMap
 from sim.params import TestbedParams
 from sim.plant import Plant
@@ -45,6 +56,8 @@ from sim.plant import Plant
 REFINEMENT = 16  # the reference step is the accurate step / REFINEMENT
 PRELOAD_NM = 1.0  # [N·m] the locked fixture's linearisation point, as in experiments.plant
 SCHEME_REFERENCE_SUBSTEPS = 256  # the h -> 0 reference of (d)
+SETTLE_TORQUE_NM, SETTLE_S, SETTLED_AFTER_S = 0.5, 0.6, 0.3  # (c): sim.characterize.settle_against_stop, window
+EULERDAMP_OFF = int(mujoco.mjtDisableBit.mjDSBL_EULERDAMP)
 # (d): how the linearised presliding friction σ0·z + σ1·ż (ż = gear velocity v while stuck) is integrated.
 # bristle: 'explicit' z_{k+1} = z_k + h·v_k (MuJoCo's dcmotor), 'symplectic' z_{k+1} = z_k + h·v_{k+1};
 # σ1 term: 'explicit' -σ1·v_k, 'implicit' -σ1·v_{k+1}, 'trapezoidal' -σ1·(v_k + v_{k+1})/2.
@@ -106,11 +119,46 @@ def stop_relaxation(fast_substeps: int | None = None) -> dict[str, dict[str, flo
         for _ in range(500):
             plant.step(limit)
         out[name] = {"full_torque_penetration": (abs(plant.backlash_angle_rad) - 0.5 * gap) / gap}
+        settle = settle_against_stop(Plant(p, "free"), SETTLE_TORQUE_NM, SETTLE_S)
+        late = np.asarray(settle["time"]) >= SETTLED_AFTER_S
+        out[name]["settled_rms_velocity_rad_s"] = float(np.sqrt(np.mean(np.asarray(settle["qd"])[late] ** 2)))
+        compliance_rad_per_nm = 0.1 * gap / p.motor.peak_torque_nm  # the stop's bound, 10 % of the gap at 18 N·m
         for push, log in run_admittance(p, seed=0).logs().items():
             backlash, tau = np.abs(np.asarray(log["backlash_angle"])), np.asarray(log["tau_flexure"])
+            loaded = stop_loaded(log)
+            hand_rate = np.diff(np.asarray(log["tau_ext"])) / np.diff(np.asarray(log["time"]))
             out[name] |= {f"{push}_push_max_penetration": max(float(backlash.max()) - 0.5 * gap, 0.0) / gap,
                           f"{push}_push_tau_roughness_nm": float(np.sqrt(np.mean(np.diff(tau, 2) ** 2))),
-                          f"{push}_push_peak_velocity_rad_s": float(np.max(np.abs(np.asarray(log["qd"]))))}
+                          f"{push}_push_peak_velocity_rad_s": float(np.max(np.abs(np.asarray(log["qd"])))),
+                          f"{push}_push_loaded_backlash_rate_rad_s":
+                              float(np.sqrt(np.mean(backlash_rate_rad_s(log)[loaded] ** 2))),
+                          f"{push}_push_compliance_bound_rad_s":
+                              compliance_rad_per_nm * float(np.sqrt(np.mean(hand_rate[loaded] ** 2)))}
+    return out
+
+
+def with_euler_damping(plant: Plant, implicit: bool) -> Plant:
+    """``plant`` with MuJoCo's Euler implicit joint damping (the ``eulerdamp`` flag) switched on or off."""
+    if implicit:
+        plant.model.opt.disableflags &= ~EULERDAMP_OFF
+    else:
+        plant.model.opt.disableflags |= EULERDAMP_OFF
+    return plant
+
+
+def euler_damping_effect(substeps: tuple[int, ...] = (8, 10, 12, 16)) -> dict[tuple[int, bool], dict[str, float]]:
+    """'fast' at each of ``substeps`` per tick, with Euler's joint damping implicit and explicit: the free
+    fixture's settled lever velocity (as in :func:`stop_relaxation`) [rad/s] and the damping ratio of the
+    locked fixture's lever ringing (closed stop, 1 N·m preload; ``lever_zeta``)."""
+    out = {}
+    for n in substeps:
+        p = TestbedParams().replace(simulation={"substeps_rule": "fast", "fast_substeps_per_tick": n})
+        for implicit in (True, False):
+            settle = settle_against_stop(with_euler_damping(Plant(p, "free"), implicit), SETTLE_TORQUE_NM, SETTLE_S)
+            late = np.asarray(settle["time"]) >= SETTLED_AFTER_S
+            lever = linearized_modes(with_euler_damping(linearizable_plant(p, "locked", PRELOAD_NM), implicit))[1]
+            settled = float(np.sqrt(np.mean(np.asarray(settle["qd"])[late] ** 2)))
+            out[n, implicit] = {"settled_rms_velocity_rad_s": settled, "lever_zeta": lever.damping_ratio}
     return out
 
 
@@ -198,7 +246,14 @@ def main(argv: list[str] | None = None) -> None:
 
     stops = stop_relaxation(n)
     print("(c) backlash stops")
-    rows = [("full_torque_penetration", "penetration at the driver's limit, of the gap", "{:.2%}")]
+    rows = [("full_torque_penetration", "penetration at the driver's limit, of the gap", "{:.2%}"),
+            ("settled_rms_velocity_rad_s", f"hub settled on its stop: RMS lever velocity from {SETTLED_AFTER_S:g} s "
+             "[rad/s]", "{:.2g}")]
+    for push in ("slow", "fast"):
+        rows += [(f"{push}_push_loaded_backlash_rate_rad_s",
+                  f"admittance {push} push, stop loaded: RMS hub velocity against the gear [rad/s]", "{:.2g}"),
+                 (f"{push}_push_compliance_bound_rad_s", "  its bound, the stop's compliance x RMS hand-torque rate",
+                  "{:.2g}")]
     for push in ("slow", "fast"):
         rows += [(f"{push}_push_max_penetration", f"admittance {push} push: deepest penetration, of the gap", "{:.1%}"),
                  (f"{push}_push_tau_roughness_nm", f"admittance {push} push: RMS 2nd difference of τ_flexure [N·m]",
@@ -208,6 +263,11 @@ def main(argv: list[str] | None = None) -> None:
     for key, label, fmt in rows:
         print(f"  {label:62s} accurate {fmt.format(stops['accurate'][key]):>8s}   "
               f"fast {fmt.format(stops['fast'][key]):>8s}")
+
+    print("(c') 'fast' at N substeps, Euler's joint damping implicit (MuJoCo's default) / explicit (the preset)")
+    for (substeps, implicit), row in euler_damping_effect().items():
+        print(f"  {substeps:2d} substeps, {'implicit' if implicit else 'explicit'}: settled RMS lever velocity "
+              f"{row['settled_rms_velocity_rad_s']:.2g} rad/s, locked lever ringing ζ {row['lever_zeta']:.4f}")
 
     print(f"(d) drivetrain mode with the presliding friction integrated each way, vs {SCHEME_REFERENCE_SUBSTEPS} "
           f"substeps of MuJoCo's scheme")

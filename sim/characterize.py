@@ -182,3 +182,32 @@ def free_vibration_peak_hz(plant: Plant, *, duration_s: float = 2.0, kick_joint:
     if not (band[i - 1] and band[i + 1] and abs(shift) <= 1.0):
         raise ValueError(f"no spectral peak inside {band_hz} Hz: the response is not a free vibration there")
     return float(freqs[i] + shift * (freqs[1] - freqs[0]))
+
+
+# [N·m] assumed: a flexure torque above this presses the hub on a backlash stop; 25x the output bearing's drag
+# at 1 rad/s (friction.output_viscous_share x viscous_nms_per_rad at the defaults).
+STOP_LOADED_NM = 0.05
+
+
+def settle_against_stop(plant: Plant, torque_nm: float = 0.5, duration_s: float = 0.6) -> RunLog:
+    """From ``plant``'s state (free fixture; from rest with the gap centred after a reset) the motor pushes with
+    ``torque_nm`` [N·m] and a hand holds the lever with ``-torque_nm``, so the gear crosses the gap, strikes the
+    hub and the chain comes to rest with the hub pressed on its stop. Returns the run log (every tick)."""
+    if plant.fixture != "free":
+        raise ValueError(f"plant.fixture = {plant.fixture!r}: the hub settles against its stop in the 'free' fixture")
+    n = round(duration_s / plant.params.simulation.control_period_s)
+    return run_open_loop(plant, np.full(n, torque_nm), np.full(n, -torque_nm), progress=False)
+
+
+def backlash_rate_rad_s(log: RunLog) -> np.ndarray:
+    """The hub's velocity against the gear [rad/s] over each tick of ``log`` (difference of backlash_angle)."""
+    return np.diff(np.asarray(log["backlash_angle"])) / np.diff(np.asarray(log["time"]))
+
+
+def stop_loaded(log: RunLog, loaded_nm: float = STOP_LOADED_NM) -> np.ndarray:
+    """Per tick interval of ``log`` (as :func:`backlash_rate_rad_s`): whether the flexure torque exceeds
+    ``loaded_nm`` [N·m] in magnitude at both ends, pressing the hub on a stop. Pressed, the hub moves with the
+    gear, against it only as fast as the stop's compliance lets the changing load push it in; a hub that
+    chatters on its stop leaves it every few physics steps."""
+    tau = np.abs(np.asarray(log["tau_flexure"]))
+    return (tau[1:] > loaded_nm) & (tau[:-1] > loaded_nm)

@@ -221,6 +221,19 @@ def physics_timestep(p: TestbedParams, fixture: str, rule: str | None = None) ->
     return p.simulation.control_period_s / n, n
 
 
+def implicit_joint_damping(p: TestbedParams) -> bool:
+    """Whether MuJoCo's Euler integrator treats joint damping implicitly (its ``eulerdamp`` flag).
+
+    True under ``simulation.substeps_rule = 'accurate'``, False under ``'fast'``. Euler applies the implicit
+    damping after the constraint solve, which computed the backlash stop's force against M rather than M + h·D;
+    at 8 substeps per ms that takes a quarter to 40 % of the damping of the lever's ringing against a closed stop,
+    and in the free fixture the hub chatters on its stop (benchmarks/README.md, 'Fidelity presets'). Explicit,
+    the flexure's damping c is stable while c·h/μ < 2, μ the hub and lever's reduced inertia (0.09 at 8
+    substeps per ms at the defaults).
+    """
+    return p.simulation.substeps_rule != "fast"
+
+
 def solver_time_constants(p: TestbedParams, fixture: str) -> dict[tuple[str, str], float]:
     """The solref time constants [s] the model uses, by ``(group, field)`` of ``SOLVER_TIME_CONSTANTS``.
 

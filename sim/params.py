@@ -51,13 +51,9 @@ class MotorParams:
         8.0, "1", "assumed: GIM8108-8 variant (SteadyWin names the planetary ratio in the suffix); the 8:1 "
         "model is the one rated 18 N·m peak as the paper states (Sec. II)", 1.0, 200.0)
     rotor_inertia_kgm2: float = quantity(
-        1.0e-4, "kg·m²", "assumed: thin-rim estimate m·r² of an 81 mm outrunner rotor (can + magnets ~0.075 kg at "
-        "mean radius ~0.036 m), an upper bound; not in the paper or the vendor's sheet. The MIT Mini Cheetah's "
-        "rotor, the 81 mm, 21-pole-pair design the GIM actuators follow, is 6.3e-5 from CAD "
-        "(mit-biomimetics/Cheetah-Software, MiniCheetah.h). Not adopted (2026-11-25): at 6.3e-5 the presliding "
-        "accuracy rule (simulation.max_step_per_bristle_time, σ1 ∝ sqrt(J)) needs 20 physics steps per ms "
-        "instead of 16, 25 % slower, for no figure of Tables VI-VII into the band (RMS |ln ratio| 0.415-0.436 "
-        "against 0.438-0.453 over seeds 0-3; docs/issue4_figures.md, Session 15)", 0.0, 1.0, low_open=True)
+        1.0e-4, "kg·m²", "assumed: thin-rim estimate m·r² of an 81 mm outrunner rotor (can + magnets "
+        "~0.075 kg at mean radius ~0.036 m), an upper bound; not in the paper or the vendor's sheet (model "
+        "README, Derivations)", 0.0, 1.0, low_open=True)
     rotor_mass_kg: float = quantity(
         0.075, "kg", "assumed: can + magnets of an 81 mm outrunner, the mass of the thin-rim estimate",
         0.0, 10.0, low_open=True)
@@ -76,12 +72,9 @@ class MotorParams:
         5.0e-4, "s", "assumed: CAN-FD transfer and driver processing of one torque command; the paper "
         "gives none", 0.0, 0.05)
     torque_saturation_per_nm: float = quantity(
-        0.0176, "1/(N·m)", "tuned: identified against the paper's Tables VI-VII by experiments/identify_defaults.py "
-        "(grid 0.0136/0.0176, 12/15 % droop at 10 N·m; the 10 N·m sine sets it). Torque per ampere falls by "
-        "magnetic saturation, τ = τ_cmd/(1 + α·|τ_cmd|), while the driver's estimate assumes the nominal K_t (paper "
-        "Sec. V-A: the current-based estimate 'exhibits nonlinearity'); 0.0176 is 15 % at 10 N·m and delivers the "
-        "18 N·m peak (Sec. II) at a 26.3 N·m command, the driver's current limit. Applied by sim.plant "
-        "(sim.motor_torque), not in the MJCF", 0.0, 0.025)
+        0.0176, "1/(N·m)", "tuned: magnetic saturation τ = τ_cmd/(1 + α·|τ_cmd|) that the driver's "
+        "current-based estimate does not see (Sec. V-A), 15 % droop at 10 N·m; chosen on the grid of "
+        "experiments/identify_defaults.py against Tables VI-VII (model README, Derivations)", 0.0, 0.025)
 
 
 @dataclass(frozen=True)
@@ -100,11 +93,9 @@ class GearFrictionParams:
     viscous_nms_per_rad: float = quantity(
         0.02, "N·m·s/rad", "assumed: output-side viscous friction of grease and bearings", 0.0, INF)
     output_viscous_share: float = quantity(
-        0.1, "1", "assumed: share of viscous_nms_per_rad that acts on the output flange and sensor hub (the "
-        "output bearing and its seal, against the housing) rather than in the gear, i.e. on the output side of "
-        "the backlash dead band. The total drag with the teeth in contact is unchanged; without a share the "
-        "free output floats undamped inside the gap and a torque step sets it rattling between the stops for "
-        "seconds (tests/test_plant_physics creep test with a 0.5 mrad gap)", 0.0, 1.0)
+        0.1, "1", "assumed: share of viscous_nms_per_rad acting on the output flange and hub (output bearing and "
+        "seal), on the output side of the backlash dead band; it damps the free output inside the gap "
+        "(model README, Derivations)", 0.0, 1.0)
     presliding_stiffness_nm_per_rad: float = quantity(
         2000.0, "N·m/rad", "assumed: LuGre bristle stiffness sigma0 at the output; presliding "
         "displacement breakaway/sigma0 = 65 µrad (~0.65 µm at a 10 mm gear pitch radius)", 0.0, INF,
@@ -113,10 +104,9 @@ class GearFrictionParams:
         1.0, "1", "assumed: critically damped presliding, sigma1 = 2·ζ·sqrt(sigma0·J_reflected) (Canudas de "
         "Wit et al. 1995 size sigma1 from sigma0 and the moving mass)", 0.0, 10.0, low_open=True)
     load_friction_coefficient: float = quantity(
-        0.05, "1", "tuned: friction added per unit transmitted torque, 1 - η for a single planetary stage of "
-        "catalogue efficiency η = 0.95 (grid 0.03/0.05 of experiments/identify_defaults.py against Tables VI-VII; "
-        "0.1-0.2 made the gear stick at the crests of the 10 N·m sine and doubled its sensor-feedback error); MuJoCo has no load-dependent friction, so sim.plant sets the gear joint's "
-        "frictionloss to this x |flexure torque| every tick", 0.0, 1.0)
+        0.05, "1", "tuned: 1 - η of one planetary stage of catalogue efficiency η = 0.95, chosen on the grid of "
+        "experiments/identify_defaults.py against Tables VI-VII; sim.plant writes it per tick into the "
+        "gear joint's frictionloss (model README, Derivations)", 0.0, 1.0)
     load_friction_time_constant_s: float = quantity(
         1.25e-4, "s", "tuned: solreffriction time constant of that frictionloss row, two physics steps (the "
         "stiffest MuJoCo resolves stably); with load_friction_impedance it bounds the creep while stuck "
@@ -131,16 +121,9 @@ class BacklashParams:
     """Dead band between gear output and the sensor hub: MuJoCo's hinge with limited range."""
 
     width_rad: float = quantity(
-        5.0e-4, "rad", "tuned: 0.03° total dead band, a tight planetary stage; the paper reports backlash but "
-        "no value (Sec. V). experiments/identify_defaults.py (grid 0.5/1.0 mrad, a first pass also 3.5 mrad = "
-        "0.2°) prefers it with load_friction_coefficient 0.05 and torque_saturation_per_nm 0.0176: Tables "
-        "VI-VII RMS |ln ratio| 0.438 against 0.69 at 1.0 mrad (2026-11-25; with the earlier quadratic droop "
-        "0.43 against 0.89 at 3.5 mrad); the impacts of crossing a wide dead band under "
-        "sensor feedback make peak errors of 0.5 N·m where the paper has 0.03-0.08 N·m. SteadyWin's GIM8108-8 "
-        "sheet gives about 15 arcmin (4.4 mrad; as transcribed in public ODrive integration notes, not "
-        "checked against the vendor's page), a catalogue bound: at 4.4 mrad the 0.05 N·m sine's and the "
-        "0.1 N·m square's sensor-feedback peak errors are 21x and 9.4x the paper's (2026-11-25), so the "
-        "paper's unit is much tighter than that bound", 0.0, 0.2,
+        5.0e-4, "rad", "tuned: 0.03° dead band of a tight planetary stage, chosen on the grid of "
+        "experiments/identify_defaults.py against Tables VI-VII; the paper reports backlash but no value "
+        "(Sec. V), the vendor's sheet a 15 arcmin bound (model README, Derivations)", 0.0, 0.2,
         low_open=True)
     stop_time_constant_s: float = quantity(
         1.25e-4, "s", "tuned: solref time constant of the stops, two physics steps (the stiffest MuJoCo "
@@ -209,11 +192,9 @@ class LoadCellParams:
         "this spring in series with the lever's bending", 0.0, 0.01, low_open=True)
     damping_ratio: float = quantity(0.02, "1", "assumed: light damping of the tip support", 0.0, 1.0)
     reading_noise_n: float = quantity(
-        0.025, "N", "tuned: inferred in closed form from Table VI (experiments/identify_defaults.py): the "
-        "sensor-feedback step errors are flat across step sizes (0.0026, 0.0026, 0.0025 N·m), a measurement "
-        "floor; the simulated loop alone leaves ~0.0005 N·m, so sqrt(0.0026² - 0.0005²) / 0.1 m ≈ 0.025 N, white at 1 kHz (amplifier and ADC; "
-        "0.005 % of the 500 N capacity, what a 24-bit strain-gauge amplifier gives). Added to the logged force "
-        "after a run: the plant's loop never sees it", 0.0, 50.0)
+        0.025, "N", "tuned: inferred in closed form by experiments/identify_defaults.py from Table VI's "
+        "sensor-feedback step errors, flat across step sizes (a measurement floor); white at 1 kHz, "
+        "added to the logged force only (model README, Derivations)", 0.0, 50.0)
 
 
 @dataclass(frozen=True)
@@ -258,13 +239,9 @@ class PhotoReflectorParams:
         1622.0, "V/m", "paper Sec. IV-B: 0.04 V/(N·m) (1 V at 25 N·m), converted as above", 0.0, INF,
         low_open=True)
     quadratic_fraction_max: float = quantity(
-        0.04, "1", "assumed: |quadratic term| up to 4 % of the linear one at the 25 N·m calibration span (the "
-        "paper fits x³, x², x per channel, Eq. 10). With the cubic term the response departs from a straight line "
-        "by 0.2-1.3 % of its swing (units 0-2): curved, but not visibly on a plot. A 1/d² gap response at a 3 mm "
-        "gap would give ~0.3 (and cubic ~0.08); measured in session 16 and not adopted: the calibration figures "
-        "stay within 4 %, but the stronger curvature multiplies the calibrated output's temperature sensitivity "
-        "(10 N·m one-hour drift 1.29x / 1.89x, zero drift per °C 0.08x) and moves the sensor-feedback figures "
-        "of Table VII (square peak 6.0x, 10 N·m peak 0.10x); docs/issue3_figures.md", 0.0, 0.5)
+        0.04, "1", "assumed: |quadratic term| up to 4 % of the linear one at the 25 N·m calibration span (the paper "
+        "fits x³, x², x per channel, Eq. 10); with the cubic term, 0.2-1.3 % of the swing from a line "
+        "(model README, Derivations)", 0.0, 0.5)
     cubic_fraction_max: float = quantity(
         0.01, "1", "assumed: |cubic term| up to 1 % of the linear one at the calibration span", 0.0, 0.5)
     operating_point_v: float = quantity(
@@ -273,33 +250,27 @@ class PhotoReflectorParams:
         0.15, "V", "assumed: unit-to-unit spread of the operating point (mounting gap tolerance)", 0.0, 1.0)
     noise_min_v: float = quantity(
         2.4e-4, "V", "tuned: quietest channel's white-noise std; with noise_max_v it sets the LS and QP stds of the "
-        "resolution comparison (Sec. IV-B). The 4x spread to noise_max_v is assumed and is not what makes the "
-        "QP's gain over LS: with all channels at 0.5 mV the gain is 2.9-3.2x (units 1000-1005, seeds 0-5; "
-        "default spread 3.0-3.5x); the gain comes from the slip fractions' spread (slip_fraction_max). Plausible "
-        "range assumed for tests: 0.15-0.4 mV", 0.0, 1.0)
+        "resolution comparison (Sec. IV-B). Plausible range assumed for tests: 0.15-0.4 mV (model "
+        "README, Derivations)", 0.0, 1.0)
     noise_max_v: float = quantity(
         9.6e-4, "V", "tuned: noisiest channel's white-noise std; plausible range assumed for tests: 1-6x "
         "noise_min_v (the TCRT1000's channel-to-channel noise spread is not in the paper)", 0.0, 1.0)
     slip_twist_max_rad: float = quantity(
         0.0103, "rad", "assumed: largest breakaway twist of the Maxwell-slip elements of the target's bolted "
         "joint, half the ±25 N·m calibration span at K_t (12.5 N·m), so loops over the calibration protocol "
-        "close at their turning points and open gradually after a reversal (Fig. 7(d) shows no step)", 0.0, 0.1, low_open=True)
+        "close at their turning points and open gradually after a reversal (Fig. 7(d) shows no step)",
+        0.0, 0.1, low_open=True)
     slip_fraction_min: float = quantity(
         0.0055, "1", "tuned: smallest fraction of the twist a channel sees through the slipping joint; the paper's "
         "hysteresis is 0.139 % FS (Table III)", 0.0, 1.0)
     slip_fraction_max: float = quantity(
-        0.0165, "1", "tuned: largest such fraction; channels differ because the slip of the reflective target is "
-        "not a pure rotation (eccentric micro-slip seen differently at each reflector). This spread is what gives "
-        "the QP its resolution gain over LS (Sec. IV-B): LS weights the channels so that the slip, seen in unequal "
-        "fractions, cancels in the output, and pays for it in noise; the QP's quiet-segment penalty trades the "
-        "noise back. With equal fractions no weighting cancels the slip and the gain is 1.01-1.07x (units "
-        "1000-1005, seeds 0-5, default noise spread; docs/issue3_figures.md). Plausible range assumed for "
-        "tests: 0.3-0.6 % for slip_fraction_min, 2-4x that for the largest", 0.0, 1.0)
+        0.0165, "1", "tuned: largest fraction of the twist a channel sees through the slipping joint; its spread "
+        "gives the QP its resolution gain over LS (Sec. IV-B). Plausible range assumed for tests: 2-4x "
+        "slip_fraction_min (model README, Derivations)", 0.0, 1.0)
     quartic_fraction_max: float = quantity(
-        0.004, "1", "assumed: |quartic term| of the optical response up to this fraction of the linear one at the "
-        "calibration span: curvature beyond the cubic basis of Eq. 10. It was meant to carry the paper's 0.111 % FS "
-        "nonlinearity after calibration, but the eight-channel cubic fit cancels it (0 to 3x this value leaves "
-        "the figure at 0.050 % FS, which the hysteresis sets; docs/issue3_figures.md)", 0.0, 0.5)
+        0.004, "1", "assumed: |quartic term| of the optical response, curvature beyond the cubic basis of Eq. 10, up "
+        "to this fraction of the linear one at the calibration span; the eight-channel cubic fit cancels "
+        "it (model README, Derivations)", 0.0, 0.5)
     crosstalk_v_per_nm: float = quantity(
         2.4e-3, "V/(N·m)", "paper Sec. IV-B: about 0.06 V per channel at 25 N·m of T_x or T_y", 0.0, 1.0)
     crosstalk_spread: float = quantity(

@@ -105,7 +105,7 @@ MAX_GAMMA = 1e6
 """Largest accepted ``gamma``, 100x below the smallest at which a feasible problem failed. A large penalty
 outweighs the data term so far that the small QPs lose the accuracy the cutting plane relies on: at 1e10-1e20
 feasible problems stalled or were called incompatible, and at 1e8 one of 480 fits stalled with a bound
-1.0001x the smallest feasible one and 16 candidate rows (session-18 reviews); every fit up to 1e7 of those
+1.0001x the smallest feasible one and 16 candidate rows; every fit up to 1e7 of those
 and of 432 others (N = 300-3000, bounds 1.0001x the smallest to 0.2 % FS, both ways of checking rows) met
 the bound. The paper's grid ends at 1e4."""
 
@@ -152,7 +152,8 @@ class SolveDiagnostics:
     solver : str
         The factorisation (``"tsqr"``: Householder, or ``"sketched-cholqr"``: randomly
         preconditioned Cholesky QR, for N >= 65 536), prefixed by ``"cutting-plane+proxqp on"``
-        for the QP; the count of exact LDP fallback solves is appended if there were any.
+        for a QP with a bound or a penalty (``fit_qp`` with ``gamma = 0`` and ``e_max = inf`` is least squares);
+        the count of exact LDP fallback solves is appended if there were any.
     iterations : int
         Solves performed (1 = the unconstrained solution already met the bound).
     n_working_constraints : int

@@ -52,7 +52,7 @@ from __future__ import annotations
 import math
 import time
 from collections.abc import Sequence
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
 from typing import Any, Literal, Protocol, runtime_checkable
 
 import numpy as np
@@ -272,11 +272,7 @@ class Problem:
             if np.count_nonzero(rows) < 2:
                 raise ValueError(f"Problem.penalty_rows selects {np.count_nonzero(rows)} rows; at least 2 are "
                                  f"needed for a spread")
-        weight = float(self.penalty_weight)
-        if not (math.isfinite(weight) and weight >= 0.0):
-            raise ValueError(f"Problem.penalty_weight must be >= 0 and finite; got {self.penalty_weight!r}")
-        if weight > 0.0 and rows is None:
-            raise ValueError(f"Problem.penalty_weight = {weight:g} needs Problem.penalty_rows (None given)")
+        weight = _check_penalty_weight(self.penalty_weight, rows is not None)
         for name, value in (("design", design), ("target", target), ("residual_bound", bound),
                             ("penalty_rows", rows), ("penalty_weight", weight)):
             object.__setattr__(self, name, value)
@@ -358,6 +354,15 @@ class MinimaxSolution:
     iterations: int
 
 
+def _check_penalty_weight(weight: float, has_rows: bool) -> float:
+    w = float(weight)
+    if not (math.isfinite(w) and w >= 0.0):
+        raise ValueError(f"Problem.penalty_weight must be >= 0 and finite; got {weight!r}")
+    if w > 0.0 and not has_rows:
+        raise ValueError(f"Problem.penalty_weight = {w:g} needs Problem.penalty_rows (None given)")
+    return w
+
+
 def _check_tol(feasibility_tol: float) -> float:
     tol = float(feasibility_tol)
     if not (math.isfinite(tol) and tol > 0.0):
@@ -415,7 +420,7 @@ def solve_path(problem: Problem, penalty_weights: Sequence[float], *, feasibilit
     ``Problem.penalty_weight`` first.
     """
     tol = _check_tol(feasibility_tol)
-    weights = [replace(problem, penalty_weight=w).penalty_weight for w in penalty_weights]
+    weights = [_check_penalty_weight(w, problem.penalty_rows is not None) for w in penalty_weights]
     design, b = problem.structured_design, problem.target
     cp = _CuttingPlane(design, b, problem.penalty_rows, _factor(design, b, problem.penalty_rows), tol)
     out: list[Solution] = []

@@ -325,3 +325,8 @@ def test_rank_deficient_design_is_refused():
         lsq.solve(lsq.Problem(np.c_[a, a[:, 0]], b), feasibility_tol=TOL)
     with pytest.raises(ValueError, match=r"Problem.design: column\(s\) \[3\] are zero"):
         lsq.solve(lsq.Problem(np.c_[a, np.zeros(50)], b, residual_bound=1.0), feasibility_tol=TOL)
+
+
+def test_solve_path_refuses_a_bad_weight_before_any_solve():
+    with pytest.raises(ValueError, match=r"Problem.penalty_weight must be >= 0 and finite; got -1"):
+        lsq.solve_path(lsq.Problem(**_ok()), [1.0, -1.0], feasibility_tol=TOL)

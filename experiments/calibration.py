@@ -34,7 +34,6 @@ from experiments.common import (
     write_outputs,
 )
 from sensor import metrics
-from sensor.calibration import FS_NM
 from sensor.evaluation import SensorEvaluation, evaluate_sensor, measured_cycles
 from sim.figures import moving_mean, save_figure
 from sim.params import TestbedParams
@@ -126,10 +125,10 @@ def branch_figure(ev: SensorEvaluation) -> BranchFigure:
     """Fig. 7's curves: :func:`sensor.metrics.nonlinearity` and :func:`~sensor.metrics.hysteresis` on the
     evaluation session's measured cycles (as :func:`sensor.evaluation.evaluate_sensor` calls them)."""
     m = measured_cycles(ev.evaluation_record, ev.qp)
-    ref, out, direction = m.reference_nm, m.output_nm, m.direction
+    ref, out, direction, fs = m.reference_nm, m.output_nm, m.direction, ev.qp.fs_nm
     bc = metrics.branch_curves(ref, out, direction)
-    nl = metrics.nonlinearity(ref, out, direction)
-    hy = metrics.hysteresis(ref, out, direction)
+    nl = metrics.nonlinearity(ref, out, direction, fs_nm=fs)
+    hy = metrics.hysteresis(ref, out, direction, fs_nm=fs)
     c = bc.level_nm[bc.both]
     asc, desc = c + bc.ascending_error_nm[bc.both], c + bc.descending_error_nm[bc.both]
     return BranchFigure(c, asc, desc, 0.5 * (asc + desc), nl.slope * c + nl.offset_nm,
@@ -142,7 +141,7 @@ def crosstalk_trace(ev: SensorEvaluation, axis: str) -> tuple[np.ndarray, metric
     (:func:`sensor.metrics.crosstalk`), and that metric's result."""
     rec = ev.crosstalk_records[axis]
     tau, unloaded = ev.qp.predict(rec.voltages_v), rec.schedule.branch == 0
-    return tau - tau[unloaded].mean(), metrics.crosstalk(tau, tare_mask=unloaded)
+    return tau - tau[unloaded].mean(), metrics.crosstalk(tau, tare_mask=unloaded, fs_nm=ev.qp.fs_nm)
 
 
 def plot_calibration(ev: SensorEvaluation, out_dir: Path) -> list[Path]:
@@ -153,17 +152,18 @@ def plot_calibration(ev: SensorEvaluation, out_dir: Path) -> list[Path]:
     return [plot_channels(ev, out_dir), plot_nonlinearity(ev, out_dir), plot_crosstalk_noise(ev, out_dir)]
 
 
-def _pct_fs(torque_nm):
-    return 100.0 * torque_nm / FS_NM
+def _pct_fs(torque_nm, fs_nm: float):
+    return 100.0 * torque_nm / fs_nm
 
 
-def _nm(pct_fs):
-    return pct_fs * FS_NM / 100.0
+def _nm(pct_fs, fs_nm: float):
+    return pct_fs * fs_nm / 100.0
 
 
-def _fs_axis(ax, quantity: str) -> None:
+def _fs_axis(ax, quantity: str, fs_nm: float) -> None:
     """A right-hand axis in % FS beside an axis in N·m."""
-    ax.secondary_yaxis("right", functions=(_pct_fs, _nm)).set_ylabel(f"{quantity} [% FS]")
+    ax.secondary_yaxis("right", functions=(lambda t: _pct_fs(t, fs_nm), lambda p: _nm(p, fs_nm))).set_ylabel(
+        f"{quantity} [% FS]")
 
 
 def plot_channels(ev: SensorEvaluation, out_dir: Path) -> Path:
@@ -187,7 +187,7 @@ def plot_channels(ev: SensorEvaluation, out_dir: Path) -> Path:
     ax[2].plot(ref[::step], err[::step], ".", ms=1, label=f"1 sample in {step}")
     ax[2].plot(ref[k], err[k], "s", ms=8, mfc="none", color="tab:red", label="largest error")
     ax[2].legend(fontsize=8, loc="lower right")
-    _fs_axis(ax[2], "error")
+    _fs_axis(ax[2], "error", ev.qp.fs_nm)
     (emax, _), (rms, _) = ev.figures["max_error_pct_fs"], ev.figures["rms_error_nm"]
     ax[2].set(xlabel="MINI85 torque [N·m]", ylabel="QP output - MINI85 [N·m]",
               title=f"(c) QP error, evaluation session (5 cycles each way)\nmax {emax:.3f} % FS (paper "
@@ -212,17 +212,17 @@ def plot_nonlinearity(ev: SensorEvaluation, out_dir: Path) -> Path:
     ax[0, 0].legend(fontsize=8)
     ax[0, 0].set_title(f"(a) branch average and its line ({bf.level_nm.size} bins of {bf.bin_width_nm:.2f} "
                        "N·m)")
-    _magnify(ax[0, 1], bf)
+    _magnify(ax[0, 1], bf, ev.qp.fs_nm)
     for a, values, name, title in (
             (ax[1, 0], bf.nonlinearity_pct_fs, "nonlinearity", "(c) nonlinearity: average - line"),
             (ax[1, 1], bf.hysteresis_pct_fs, "hysteresis", "(d) hysteresis: ascending - descending")):
-        _deviation_panel(a, bf.level_nm, values, PAPER_FIG7_PEAK_PCT_FS[name], title)
+        _deviation_panel(a, bf.level_nm, values, PAPER_FIG7_PEAK_PCT_FS[name], title, ev.qp.fs_nm)
     fig.suptitle("Nonlinearity and hysteresis of the QP calibration on the evaluation session, preload cycles "
                  "excluded (paper Fig. 7, Table III)", fontsize=11)
     return save_figure(fig, out_dir, "calibration_nonlinearity.png")
 
 
-def _magnify(ax, bf: BranchFigure) -> None:
+def _magnify(ax, bf: BranchFigure, fs_nm: float) -> None:
     """Fig. 7(b): a window of ``MAGNIFIED_HALF_WIDTH_NM`` about the largest nonlinearity, its deviation drawn."""
     k = int(np.argmax(np.abs(bf.nonlinearity_pct_fs)))
     c, h = bf.level_nm[k], MAGNIFIED_HALF_WIDTH_NM
@@ -232,11 +232,12 @@ def _magnify(ax, bf: BranchFigure) -> None:
     ax.annotate("", xy=(c, bf.average_nm[k]), xytext=(c, bf.line_nm[k]),
                 arrowprops={"arrowstyle": "<->", "color": "tab:red", "shrinkA": 0, "shrinkB": 0})
     ax.text(c + 0.03 * h, 0.5 * (bf.average_nm[k] + bf.line_nm[k]),
-            f" {_nm(abs(bf.nonlinearity_pct_fs[k])):.3f} N·m", color="tab:red", va="center", fontsize=8)
+            f" {_nm(abs(bf.nonlinearity_pct_fs[k]), fs_nm):.3f} N·m", color="tab:red", va="center", fontsize=8)
     ax.set_title(f"(b) magnified around {c:.1f} N·m, the largest deviation from the line")
 
 
-def _deviation_panel(ax, level_nm: np.ndarray, values_pct_fs: np.ndarray, paper_peak: float, title: str) -> None:
+def _deviation_panel(ax, level_nm: np.ndarray, values_pct_fs: np.ndarray, paper_peak: float, title: str,
+                     fs_nm: float) -> None:
     """A deviation curve [% FS] against torque, its peak marked beside the paper's (dotted, both signs)."""
     k = int(np.argmax(np.abs(values_pct_fs)))
     ax.plot(level_nm, values_pct_fs, "o-", ms=3, lw=1.0, label="simulated")
@@ -247,7 +248,8 @@ def _deviation_panel(ax, level_nm: np.ndarray, values_pct_fs: np.ndarray, paper_
                    label=f"paper's peak {paper_peak} % FS" if sign > 0 else None)
     ax.axhline(0.0, color="0.8", lw=0.6)
     ax.set(xlabel="MINI85 torque [N·m]", ylabel="deviation [% FS]", title=title)
-    ax.secondary_yaxis("right", functions=(_nm, _pct_fs)).set_ylabel("deviation [N·m]")
+    ax.secondary_yaxis("right", functions=(lambda p: _nm(p, fs_nm), lambda t: _pct_fs(t, fs_nm))).set_ylabel(
+        "deviation [N·m]")
     ax.legend(fontsize=8)
 
 
@@ -297,7 +299,7 @@ def _crosstalk_panel(ax, ev: SensorEvaluation, axis: str) -> None:
             label="largest |apparent T_z|: the crosstalk")
     paper = paper_value(f"crosstalk_t{axis}_pct_fs")
     for sign in (1, -1):
-        ax.axhline(sign * _nm(paper), color="0.4", ls=":",
+        ax.axhline(sign * _nm(paper, ev.qp.fs_nm), color="0.4", ls=":",
                    label=f"paper's crosstalk {paper} % FS" if sign > 0 else None)
     ax.set(xlabel="time [s]", ylabel="apparent T_z, tared at no load [N·m]",
            title=f"(b) crosstalk under T_{axis}: QP output with T_z = 0\n"

@@ -114,7 +114,9 @@ def run_thermal(params: TestbedParams | None = None, seed: int = 0) -> ThermalEx
         figures[f"dyjn104_drift_rms_{tag}"] = (None, "N·m")
     t_lo = min(r.tmp117_c.min() for r in tests.values())
     t_hi = max(r.tmp117_c.max() for r in tests.values())
-    figures["drift_per_kelvin_pct_fs"] = (zero_drift_per_kelvin_pct_fs(drift_model.predict, t_lo, t_hi), "% FS")
+    figures["drift_per_kelvin_pct_fs"] = (
+        zero_drift_per_kelvin_pct_fs(drift_model.predict, t_lo, t_hi, fs_nm=params.photoreflector.full_scale_nm),
+        "% FS")
     return ThermalExperiment(chamber, models, tests, figures, comparison_rows(figures, PAPER_FIGURES),
                              compensation_model, t_ref)
 

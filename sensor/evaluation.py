@@ -19,11 +19,26 @@ from typing import Any
 import numpy as np
 
 from sensor import metrics
-from sensor.calibration import (MIN_QUIET_SAMPLES, Calibration, GammaSelection, fit_least_squares,
-                                quiet_segment_mask, select_gamma)
+from sensor.calibration import (
+    E_MAX_FRACTION_FS,
+    MIN_QUIET_SAMPLES,
+    Calibration,
+    GammaSelection,
+    fit_least_squares,
+    quiet_segment_mask,
+    select_gamma,
+)
 from sensor.photoreflector import PhotoReflectorArray
-from sensor.protocol import (CALIBRATION_CYCLES, PRELOAD_LABEL, RigRecord, calibration_schedule, check_params,
-                             crosstalk_schedule, record, resolution_schedule)
+from sensor.protocol import (
+    CALIBRATION_CYCLES,
+    PRELOAD_LABEL,
+    RigRecord,
+    calibration_schedule,
+    check_params,
+    crosstalk_schedule,
+    record,
+    resolution_schedule,
+)
 from sim.params import TestbedParams
 
 # Noise streams of one evaluation, derived from its seed (numpy SeedSequence spawn keys).
@@ -129,7 +144,7 @@ class RigCalibration:
     gamma_selection: GammaSelection
 
 
-def calibrate(torque_record: RigRecord, moment_records: list[RigRecord]) -> RigCalibration:
+def calibrate(torque_record: RigRecord, moment_records: list[RigRecord], *, fs_nm: float) -> RigCalibration:
     """Fit LS and QP on the T_z loading record plus the T_x/T_y moment records (target T_z from the MINI85).
 
     The moment records are part of the calibration data: the paper uses the redundant channels to reduce
@@ -142,6 +157,8 @@ def calibrate(torque_record: RigRecord, moment_records: list[RigRecord]) -> RigC
         is the QP's quiet segment I_0. Voltages [V], MINI85 torque [N·m].
     moment_records : list of RigRecord
         The T_x / T_y moment records (T_z = 0), appended to the data; not part of I_0.
+    fs_nm : float
+        Full scale [N·m] (``photoreflector.full_scale_nm``): the QP's error bound is 0.2 % of it (Eq. 14).
 
     Returns
     -------
@@ -153,11 +170,13 @@ def calibrate(torque_record: RigRecord, moment_records: list[RigRecord]) -> RigC
     y = np.concatenate([r.tau_reference_nm for r in records])
     quiet = np.concatenate([leading_quiet_segment(torque_record.tau_reference_nm)]
                            + [np.zeros(len(r.tau_reference_nm), dtype=bool) for r in moment_records])
-    selection = select_gamma(v, y, quiet_mask=quiet, lambda_weight=RESOLUTION_LAMBDA_WEIGHT)
-    return RigCalibration(fit_least_squares(v, y), selection.calibration, selection)
+    selection = select_gamma(v, y, quiet_mask=quiet, lambda_weight=RESOLUTION_LAMBDA_WEIGHT,
+                             e_max_nm=E_MAX_FRACTION_FS * fs_nm, fs_nm=fs_nm)
+    return RigCalibration(fit_least_squares(v, y, fs_nm=fs_nm), selection.calibration, selection)
 
 
-def _repeatability_per_series(ref: np.ndarray, out: np.ndarray, cycle: np.ndarray, direction: np.ndarray) -> float:
+def _repeatability_per_series(ref: np.ndarray, out: np.ndarray, cycle: np.ndarray, direction: np.ndarray,
+                              fs_nm: float) -> float:
     """Repeatability [% FS] within each series of five same-sign cycles, the worse of the two series.
 
     The repetitions of the paper's test are the five loadings in one direction; comparing a positive cycle's
@@ -165,7 +184,8 @@ def _repeatability_per_series(ref: np.ndarray, out: np.ndarray, cycle: np.ndarra
     hysteresis as non-repeatability.
     """
     series = [(cycle >= 0) & (cycle < CALIBRATION_CYCLES), cycle >= CALIBRATION_CYCLES]
-    return max(metrics.repeatability(ref[m], out[m], cycle[m], direction[m]).repeatability_pct_fs for m in series)
+    return max(metrics.repeatability(ref[m], out[m], cycle[m], direction[m], fs_nm=fs_nm).repeatability_pct_fs
+               for m in series)
 
 
 def resolution_gain(params: TestbedParams | None = None, seed: int = 0) -> tuple[float, float]:
@@ -195,8 +215,9 @@ def resolution_gain(params: TestbedParams | None = None, seed: int = 0) -> tuple
     sensor.calibration.InfeasibleCalibrationError
         If no calibration meets the paper's error bound on the calibration record.
     """
-    run = _recorder(params or TestbedParams(), seed)
-    _, rig = _calibrated(run)
+    params = params or TestbedParams()
+    run = _recorder(params, seed)
+    _, rig = _calibrated(run, params.photoreflector.full_scale_nm)
     v = run("resolution", resolution_schedule).voltages_v
     return (metrics.resolution_3sigma(rig.ls.predict(v)).std_nm, metrics.resolution_3sigma(rig.qp.predict(v)).std_nm)
 
@@ -215,11 +236,11 @@ def _recorder(params: TestbedParams, seed: int):
     return run
 
 
-def _calibrated(run) -> tuple[RigRecord, RigCalibration]:
-    """The calibration record and both calibrations fitted on it with the moment records."""
+def _calibrated(run, fs_nm: float) -> tuple[RigRecord, RigCalibration]:
+    """The calibration record and both calibrations fitted on it with the moment records (full scale ``fs_nm``)."""
     cal_rec = run("calibration", calibration_schedule)
     moments = [run(f"calibration_moment_{axis}", lambda dt, a=axis: crosstalk_schedule(dt, a)) for axis in "xy"]
-    return cal_rec, calibrate(cal_rec, moments)
+    return cal_rec, calibrate(cal_rec, moments, fs_nm=fs_nm)
 
 
 def improvement_ratio(ls_std_nm: float, qp_std_nm: float) -> float:
@@ -251,16 +272,18 @@ def evaluate_sensor(params: TestbedParams | None = None, seed: int = 0) -> Senso
     sensor.calibration.InfeasibleCalibrationError
         If no calibration meets the paper's error bound on the calibration record.
     """
-    run = _recorder(params or TestbedParams(), seed)
-    cal_rec, rig = _calibrated(run)
+    params = params or TestbedParams()
+    fs = params.photoreflector.full_scale_nm
+    run = _recorder(params, seed)
+    cal_rec, rig = _calibrated(run, fs)
     ls, qp, selection = rig.ls, rig.qp, rig.gamma_selection
 
     ev = run("evaluation", calibration_schedule)
     m = measured_cycles(ev, qp)
     ref, out, direction = m.reference_nm, m.output_nm, m.direction
-    err = metrics.error_metrics(out, ref)
+    err = metrics.error_metrics(out, ref, fs_nm=fs)
     xt = {axis: run(f"crosstalk_{axis}", lambda dt, a=axis: crosstalk_schedule(dt, a)) for axis in ("x", "y")}
-    cross = {axis: metrics.crosstalk(qp.predict(r.voltages_v), tare_mask=r.schedule.branch == 0)
+    cross = {axis: metrics.crosstalk(qp.predict(r.voltages_v), tare_mask=r.schedule.branch == 0, fs_nm=fs)
              for axis, r in xt.items()}
     res_rec = run("resolution", resolution_schedule)
     res_ls = metrics.resolution_3sigma(ls.predict(res_rec.voltages_v))
@@ -268,9 +291,9 @@ def evaluate_sensor(params: TestbedParams | None = None, seed: int = 0) -> Senso
     figures = {
         "max_error_pct_fs": (err.max_error_pct_fs, "% FS"),
         "rms_error_nm": (err.rms_error_nm, "N·m"),
-        "nonlinearity_pct_fs": (metrics.nonlinearity(ref, out, direction).nonlinearity_pct_fs, "% FS"),
-        "hysteresis_pct_fs": (metrics.hysteresis(ref, out, direction).hysteresis_pct_fs, "% FS"),
-        "repeatability_pct_fs": (_repeatability_per_series(ref, out, m.cycle, direction),
+        "nonlinearity_pct_fs": (metrics.nonlinearity(ref, out, direction, fs_nm=fs).nonlinearity_pct_fs, "% FS"),
+        "hysteresis_pct_fs": (metrics.hysteresis(ref, out, direction, fs_nm=fs).hysteresis_pct_fs, "% FS"),
+        "repeatability_pct_fs": (_repeatability_per_series(ref, out, m.cycle, direction, fs),
                                  "% FS"),
         "crosstalk_tx_pct_fs": (cross["x"].crosstalk_pct_fs, "% FS"),
         "crosstalk_ty_pct_fs": (cross["y"].crosstalk_pct_fs, "% FS"),

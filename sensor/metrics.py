@@ -1,7 +1,8 @@
 """Sensor evaluation metrics, defined once, as the paper uses them (Sec. IV-B, Tables III-IV).
 
-Every metric reported in % FS is normalised by the full scale ``FS = 80 N m`` (the design maximum
-T_z^max, Sec. IV-B) unless a different ``fs_nm`` is given -- not by the calibrated range (+-25 N m).
+Every metric reported in % FS is normalised by the full scale ``FS`` (``photoreflector.full_scale_nm``,
+80 N m: the design maximum T_z^max, Sec. IV-B) unless a different ``fs_nm`` is given -- not by the calibrated
+range (+-25 N m).
 
 =====================  ======================================================  ==================
 Metric                 Definition used here                                    Paper value
@@ -58,7 +59,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from sensor.calibration import FS_NM
+from sim.params import PhotoReflectorParams
 
 __all__ = [
     "DEFAULT_N_BINS",
@@ -85,6 +86,9 @@ __all__ = [
     "drift_rms_nm",
     "zero_drift_per_kelvin_pct_fs",
 ]
+
+_FS_NM = PhotoReflectorParams().full_scale_nm
+"""Default full scale [N m]: ``photoreflector.full_scale_nm`` of the default parameters."""
 
 DEFAULT_N_BINS = 50
 """Reference-torque bins for the branch curves (our choice; 1 N m wide over +-25 N m)."""
@@ -162,7 +166,7 @@ class ErrorMetrics:
     n_samples: int
 
 
-def error_metrics(tau_hat: np.ndarray, tau_ref: np.ndarray, *, fs_nm: float = FS_NM) -> ErrorMetrics:
+def error_metrics(tau_hat: np.ndarray, tau_ref: np.ndarray, *, fs_nm: float = _FS_NM) -> ErrorMetrics:
     """Max error [N m, % FS] and RMS error [N m] of ``tau_hat`` against ``tau_ref`` (both (N,))."""
     t, r = _pair(tau_hat, tau_ref)
     fs = _fs(fs_nm)
@@ -172,7 +176,7 @@ def error_metrics(tau_hat: np.ndarray, tau_ref: np.ndarray, *, fs_nm: float = FS
                         rms_error_nm=math.sqrt(float(np.mean(e * e))), fs_nm=fs, n_samples=e.size)
 
 
-def max_error_pct_fs(tau_hat: np.ndarray, tau_ref: np.ndarray, *, fs_nm: float = FS_NM) -> float:
+def max_error_pct_fs(tau_hat: np.ndarray, tau_ref: np.ndarray, *, fs_nm: float = _FS_NM) -> float:
     """``100 * max_k |tau_hat_k - tau_k| / FS`` [% FS]."""
     return error_metrics(tau_hat, tau_ref, fs_nm=fs_nm).max_error_pct_fs
 
@@ -405,7 +409,7 @@ class NonlinearityResult:
 
 
 def nonlinearity(tau_ref: np.ndarray, tau_hat: np.ndarray, direction: np.ndarray, *,
-                 fs_nm: float = FS_NM, bin_edges_nm: np.ndarray | None = None,
+                 fs_nm: float = _FS_NM, bin_edges_nm: np.ndarray | None = None,
                  n_bins: int = DEFAULT_N_BINS) -> NonlinearityResult:
     """Nonlinearity [% FS]: max deviation of the average of the two branches from its LS line.
 
@@ -455,7 +459,7 @@ class HysteresisResult:
 
 
 def hysteresis(tau_ref: np.ndarray, tau_hat: np.ndarray, direction: np.ndarray, *,
-               fs_nm: float = FS_NM, bin_edges_nm: np.ndarray | None = None,
+               fs_nm: float = _FS_NM, bin_edges_nm: np.ndarray | None = None,
                n_bins: int = DEFAULT_N_BINS) -> HysteresisResult:
     """Hysteresis [% FS]: ``100 * max_c |e_asc(c) - e_desc(c)| / FS`` over bins holding both
     branches (the output difference of the two branches at the same reference torque ``c``)."""
@@ -498,7 +502,7 @@ class RepeatabilityResult:
 
 
 def repeatability(tau_ref: np.ndarray, tau_hat: np.ndarray, cycle: np.ndarray,
-                  direction: np.ndarray, *, fs_nm: float = FS_NM,
+                  direction: np.ndarray, *, fs_nm: float = _FS_NM,
                   bin_edges_nm: np.ndarray | None = None,
                   n_bins: int = DEFAULT_N_BINS) -> RepeatabilityResult:
     """Repeatability [% FS]: max spread across repeated cycles at the same reference level.
@@ -583,7 +587,7 @@ class CrosstalkResult:
 
 def crosstalk(tau_hat: np.ndarray, *, tau_z_ref: np.ndarray | None = None,
               applied_moment_nm: np.ndarray | None = None, tare_mask: np.ndarray | None = None,
-              fs_nm: float = FS_NM) -> CrosstalkResult:
+              fs_nm: float = _FS_NM) -> CrosstalkResult:
     """Crosstalk [% FS]: the apparent T_z output under an applied T_x or T_y moment.
 
     ``crosstalk = 100 * max_k |tau_hat_k - tau_z,k| / FS`` over the moment test, with ``tau_z`` the
@@ -670,7 +674,7 @@ def drift_rms_nm(tau_hat: np.ndarray, tau_ref: np.ndarray) -> float:
     return rms_error_nm(tau_hat, tau_ref)
 
 
-def zero_drift_per_kelvin_pct_fs(zero_drift_nm, t_low_c: float, t_high_c: float, *, fs_nm: float = FS_NM) -> float:
+def zero_drift_per_kelvin_pct_fs(zero_drift_nm, t_low_c: float, t_high_c: float, *, fs_nm: float = _FS_NM) -> float:
     """The paper's "a maximum temperature change of 1 °C resulted in about 0.014 % FS": the largest change of the
     fitted zero drift over 1 °C within the tests' temperature range [% FS].
 

@@ -15,7 +15,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from models.gim8108_testbed.derived import derive
-from sensor.calibration import E_MAX_NM, QUIET_TAU_THRESHOLD_NM
+from sensor.calibration import E_MAX_FRACTION_FS, QUIET_TAU_THRESHOLD_NM
 from sensor.photoreflector import PhotoReflectorArray, reference_torque
 from sim.params import ParameterError, TestbedParams
 
@@ -199,13 +199,14 @@ def check_params(params: TestbedParams) -> None:
     rate = max(abs(x) for x in steps) / TRANSITION_S
     alpha = math.exp(-2.0 * math.pi * pr.bandwidth_hz * dt)
     lag_nm = rate * dt * alpha / (1.0 - alpha)
-    if lag_nm >= E_MAX_NM:
-        k = E_MAX_NM / (rate * dt)                      # lag < e_max  <=>  alpha < k / (1 + k)
+    e_max_nm = E_MAX_FRACTION_FS * pr.full_scale_nm
+    if lag_nm >= e_max_nm:
+        k = e_max_nm / (rate * dt)                      # lag < e_max  <=>  alpha < k / (1 + k)
         f_min = -math.log(k / (1.0 + k)) / (2.0 * math.pi * dt)
         raise ParameterError(
             f"photoreflector.bandwidth_hz = {pr.bandwidth_hz:g} Hz: the sensing chain lags the calibration "
             f"protocol's {rate:g} N·m/s ramps by {lag_nm:.3g} N·m, one way loading and the other unloading, so "
-            f"no calibration keeps every sample within the paper's e_max = {E_MAX_NM:g} N·m (Eq. 14); valid "
+            f"no calibration keeps every sample within the paper's e_max = {e_max_nm:g} N·m (Eq. 14); valid "
             f"range with {1 / dt:g} Hz sampling: > {f_min:.3g} Hz (the paper's chain: ~5 kHz, Table II)")
 
     lo, hi, op_lo, op_hi = _protocol_voltage_range(params)

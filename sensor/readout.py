@@ -64,7 +64,8 @@ def factory_calibration(params: TestbedParams | None = None, method: Literal["ls
 
     dt = params.simulation.control_period_s
     rig = calibrate(run(streams[0], calibration_schedule(dt)),
-                    [run(s, crosstalk_schedule(dt, axis)) for s, axis in zip(streams[1:], "xy", strict=True)])
+                    [run(s, crosstalk_schedule(dt, axis)) for s, axis in zip(streams[1:], "xy", strict=True)],
+                    fs_nm=params.photoreflector.full_scale_nm)
     return rig.ls if method == "ls" else rig.qp
 
 

@@ -286,6 +286,10 @@ class PhotoReflectorParams:
     adc_bits: int = quantity(16, "1", "paper Sec. II: 16-bit ADC", 8, 32)
     adc_reference_v: float = quantity(3.3, "V", "paper Sec. IV-B: 3.3 V referenced ADC", 0.0, 10.0,
                                       low_open=True)
+    full_scale_nm: float = quantity(
+        80.0, "N·m", "paper Sec. IV-B: 'the full-scale (FS) is defined as the design maximum T_z^max = 80 N·m'; "
+        "every % FS figure (Tables III-IV, the error bound e_max = 0.2 % FS of Eq. 14) is relative to it",
+        0.0, 1000.0, low_open=True)
     reference_resolution_nm: float = quantity(
         7.0 / 748.0, "N·m", "paper Sec. IV-A: ATI MINI85 T_z resolution 7/748 N·m", 0.0, 1.0, low_open=True)
     reference_noise_nm: float = quantity(

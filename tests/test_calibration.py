@@ -10,18 +10,23 @@ from __future__ import annotations
 import concurrent.futures
 import json
 import math
-import threading
 import re
+import threading
 
 import numpy as np
 import pytest
-import threadpoolctl
 import qpsolvers
 import scipy.optimize
+import threadpoolctl
 from hypothesis import HealthCheck, assume, given, settings
 from hypothesis import strategies as st
 
+from sensor import blas_threads
 from sensor import calibration as cal
+from sensor import constrained_lsq as lsq
+from sim.params import PhotoReflectorParams
+
+FS_NM = PhotoReflectorParams().full_scale_nm
 
 # --- Tolerances (stated once) ---------------------------------------------------------------------
 EXACT_RTOL = 1e-8
@@ -33,7 +38,7 @@ FULL_QP_PRED_ATOL_NM = 1e-6
 FULL_QP_OBJ_RTOL = 1e-8
 """... and relative agreement of the Eq. 17 objective values."""
 LP_RTOL = 1e-7
-LP_ATOL_NM = cal.FEASIBILITY_TOL_FRACTION_FS * cal.FS_NM
+LP_ATOL_NM = cal.FEASIBILITY_TOL_FRACTION_FS * FS_NM
 """Smallest feasible e_max vs an independent HiGHS LP on all rows: relative 1e-7, or absolute
 1e-9 FS (the method's stated guarantee: the reported value is an achieved max residual, at most
 1e-9 FS above the LP optimum) for small values."""
@@ -123,10 +128,10 @@ def factorization(request, monkeypatch):
     """Run a test once per factorisation of the design matrix (both must give the exact answer):
     Householder TSQR, and the sketched Cholesky QR forced on small data with a 128-row sample."""
     if request.param == "sketched-cholqr":
-        monkeypatch.setattr(cal, "SKETCH_MIN_N", 0)
-        monkeypatch.setattr(cal, "SKETCH_ROWS", 128)
+        monkeypatch.setattr(lsq, "SKETCH_MIN_N", 0)
+        monkeypatch.setattr(lsq, "SKETCH_ROWS", 128)
     else:
-        monkeypatch.setattr(cal, "SKETCH_MIN_N", 10 ** 12)
+        monkeypatch.setattr(lsq, "SKETCH_MIN_N", 10 ** 12)
     return request.param
 
 
@@ -136,9 +141,9 @@ def row_checks(request, monkeypatch):
     and a candidate subset between passes over every row, forced to at most 16 rows so that the
     passes over every row must find what the candidates missed."""
     if request.param == "every-row":
-        monkeypatch.setattr(cal, "_candidate_rows", lambda abs_r, e_max_nm: None)
+        monkeypatch.setattr(lsq, "_candidate_rows", lambda abs_r, e_max_nm: None)
     else:
-        monkeypatch.setattr(cal, "MAX_CANDIDATE_ROWS", 16)
+        monkeypatch.setattr(lsq, "MAX_CANDIDATE_ROWS", 16)
     return request.param
 
 
@@ -258,9 +263,9 @@ def test_candidate_rows_save_passes_over_all_rows_and_give_the_same_solution(mon
     e_max = 1.05 * cal.smallest_feasible_e_max(v, tau)
     fit = cal.fit_qp(v, tau, gamma=1e3, quiet_mask=mask, e_max_nm=e_max)
     with monkeypatch.context() as m:
-        m.setattr(cal, "MAX_CANDIDATE_ROWS", 2_000)
+        m.setattr(lsq, "MAX_CANDIDATE_ROWS", 2_000)
         subset_start = cal.fit_qp(v, tau, gamma=1e3, quiet_mask=mask, e_max_nm=e_max)
-    monkeypatch.setattr(cal, "_candidate_rows", lambda abs_r, e_max_nm: None)
+    monkeypatch.setattr(lsq, "_candidate_rows", lambda abs_r, e_max_nm: None)
     every = cal.fit_qp(v, tau, gamma=1e3, quiet_mask=mask, e_max_nm=e_max)
     assert every.diagnostics.full_passes == every.diagnostics.iterations >= 3
     for other in (fit, subset_start):
@@ -291,7 +296,7 @@ def test_fits_in_threads_run_on_one_blas_thread_and_restore_the_count_found_befo
     before = _blas_threads()
     if before == [1]:
         pytest.skip("BLAS runs on one thread here: nothing to limit or restore")
-    probe = cal._single_threaded_blas(_blas_threads)
+    probe = blas_threads.single_threaded_blas(_blas_threads)
     assert probe() == [1] and _blas_threads() == before
     seen = []
     worker = threading.Thread(target=lambda: seen.append(probe()))
@@ -302,13 +307,13 @@ def test_fits_in_threads_run_on_one_blas_thread_and_restore_the_count_found_befo
     a_in, b_in, a_out = threading.Event(), threading.Event(), threading.Event()
     v, tau, mask = _realistic(300, 0)
 
-    @cal._single_threaded_blas
+    @blas_threads.single_threaded_blas
     def fit_a():
         a_in.set()
         b_in.wait(10)
         return cal.fit_qp(v, tau, gamma=100.0, quiet_mask=mask)
 
-    @cal._single_threaded_blas
+    @blas_threads.single_threaded_blas
     def fit_b():
         b_in.set()
         a_out.wait(10)
@@ -336,7 +341,7 @@ def test_a_fit_runs_without_the_blas_limit_if_threadpoolctl_fails(monkeypatch):
     def broken():
         raise OSError("no BLAS found")
 
-    monkeypatch.setattr(cal, "_blas_controller", broken)
+    monkeypatch.setattr(blas_threads, "_controller", broken)
     v, tau, _ = _realistic(300, 0)
     with pytest.warns(RuntimeWarning, match="BLAS threads not limited"):
         fit = cal.fit_least_squares(v, tau)
@@ -427,8 +432,8 @@ def test_random_channel_sets_meet_the_bound_or_report_the_smallest_one(seed, n, 
     gamma = 10.0 ** log10_gamma
     with pytest.MonkeyPatch.context() as mp:
         if sketched:
-            mp.setattr(cal, "SKETCH_MIN_N", 0)
-            mp.setattr(cal, "SKETCH_ROWS", 64)
+            mp.setattr(lsq, "SKETCH_MIN_N", 0)
+            mp.setattr(lsq, "SKETCH_ROWS", 64)
         _check_bound_or_report(v, tau, mask, gamma, e_max, e_lp, factor)
 
 
@@ -491,5 +496,5 @@ def test_same_data_give_the_same_dict_without_wall_times():
 
 def test_defaults_follow_the_paper():
     """FS = 80 N m (Sec. IV-B) and e_max = 0.2 % FS = 0.16 N m (Eq. 14)."""
-    assert cal.FS_NM == 80.0
-    assert cal.E_MAX_NM == pytest.approx(0.16)
+    assert FS_NM == 80.0
+    assert pytest.approx(0.16) == cal.E_MAX_NM

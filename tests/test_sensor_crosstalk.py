@@ -11,11 +11,13 @@ import numpy as np
 import pytest
 
 from sensor import metrics
-from sensor.calibration import FS_NM, select_gamma
+from sensor.calibration import select_gamma
 from sensor.evaluation import RESOLUTION_LAMBDA_WEIGHT, evaluate_sensor, leading_quiet_segment
 from sensor.photoreflector import PhotoReflectorArray
 from sensor.protocol import Schedule, record
 from sim.params import TestbedParams
+
+FS_NM = TestbedParams().photoreflector.full_scale_nm
 
 PAPER_CROSSTALK_PCT_FS = {"x": 0.148, "y": 0.126}  # paper Table IV
 

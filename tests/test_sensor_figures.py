@@ -10,9 +10,10 @@ import pytest
 
 from experiments.calibration import branch_figure, crosstalk_trace, plot_calibration
 from experiments.thermal import run_thermal
-from sensor.calibration import FS_NM
 from sensor.evaluation import evaluate_sensor
 from sim.params import TestbedParams
+
+FS_NM = TestbedParams().photoreflector.full_scale_nm
 
 CALIBRATION_FIGURES = ("calibration_channels.png", "calibration_nonlinearity.png", "calibration_crosstalk_noise.png")
 MIN_PNG_BYTES = 10_000  # a figure with its traces drawn, not an empty canvas

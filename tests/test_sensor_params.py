@@ -57,6 +57,17 @@ def test_a_bandwidth_too_low_for_the_protocols_loading_rate_names_bandwidth():
     check_params(_pr(bandwidth_hz=9.7))
 
 
+def test_the_full_scale_sets_the_error_bound_of_the_check_and_of_the_factory_calibration():
+    """photoreflector.full_scale_nm sets e_max = 0.2 % FS: at twice the paper's 80 N·m the bandwidth check's
+    bound doubles (9.6 Hz, refused at 80 N·m, passes) and the factory QP calibration is fitted to 0.32 N·m."""
+    wide = {"full_scale_nm": 160.0}
+    check_params(_pr(bandwidth_hz=9.6, **wide))
+    cal = factory_calibration(_pr(**wide))
+    assert cal.fs_nm == 160.0 and cal.e_max_nm == pytest.approx(2 * E_MAX_NM)
+    with pytest.raises(ParameterError, match=r"photoreflector\.full_scale_nm"):
+        _pr(full_scale_nm=0.0)
+
+
 def test_the_refused_bandwidth_is_truly_infeasible(monkeypatch):
     """The bandwidth limit is necessary, not a guess: just below it (9.6 Hz), with the check bypassed, the
     QP calibration is infeasible and its smallest feasible e_max exceeds the paper's."""

@@ -12,10 +12,11 @@ import numpy as np
 import pytest
 
 from experiments.thermal import run_thermal
-from sensor.calibration import FS_NM
 from sensor.photoreflector import PhotoReflectorArray
 from sensor.readout import factory_calibration
 from sim.params import TestbedParams
+
+FS_NM = TestbedParams().photoreflector.full_scale_nm
 
 FIT_SLOPE_TOLERANCE_PCT_FS = 0.001  # 0.0008 N·m/K: the rational fit's slope error over a 1 K range (noise)
 

@@ -48,8 +48,11 @@ import pytest
 from scipy.optimize import linprog
 
 from sensor import metrics as m
-from sensor.calibration import FS_NM, fit_least_squares
+from sensor.calibration import fit_least_squares
 from sensor.protocol import CALIBRATION_LEVELS_NM
+from sim.params import TestbedParams
+
+FS_NM = TestbedParams().photoreflector.full_scale_nm  # the paper's full scale, 80 N·m
 
 # Paper figures as printed and the interval each rounds from (half a unit in the last digit).
 MAX_ERROR_PCT_FS = (0.0830, 0.00005)  # Table III

@@ -50,11 +50,11 @@ from sensor import calibration as cal
 
 SEED = 1
 CYCLES = 5
-AMPLITUDE_NM = 25.0          # Sec. IV-B: calibration range +-25 N m
+AMPLITUDE_NM = 25.0          # Sec. III-B: calibration range +-25 N m
 REFERENCE_NOISE_NM = 0.003
 HYSTERESIS_V = 0.002
 NOISE_RANGE_V = (1e-3, 5e-3)
-SENSITIVITY_RANGE_V_PER_NM = (0.024, 0.04)   # Sec. IV-B: 0.024-0.04 V/(N m)
+SENSITIVITY_RANGE_V_PER_NM = (0.024, 0.04)   # Sec. III-B: 0.024-0.04 V/(N m)
 CUBIC_FRACTION_AT_FULL_RANGE = 0.01
 ACTIVE_GAMMA = 1e4
 TIGHT_FACTOR = 1.01

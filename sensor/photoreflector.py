@@ -1,4 +1,4 @@
-"""The eight-channel photo-reflector array (paper Secs. II-IV): twist, moments and temperature to ADC volts.
+"""The eight-channel photo-reflector array (paper Secs. II-III): twist, moments and temperature to ADC volts.
 
 Written in Python because MuJoCo has no optical sensor. Channel k sits in direction φ_j = j·π/2
 (j = k // 2: +x, +y, -x, -y) at the sensing radius l_s. The two channels of a direction face the reflective
@@ -30,7 +30,7 @@ from models.gim8108_testbed.derived import derive
 from sim.params import TestbedParams
 
 CHANNELS = 8
-CALIBRATION_SPAN_NM = 25.0  # paper Sec. IV-B: calibration range ±25 N·m; the nonlinearity fractions refer to it
+CALIBRATION_SPAN_NM = 25.0  # paper Sec. III-B: calibration range ±25 N·m; the nonlinearity fractions refer to it
 SLIP_ELEMENTS = 8  # discretisation of the Maxwell-slip operator: loops within 1/8 of their width of the limit
 
 

@@ -1,6 +1,6 @@
 """The calibrated joint torque sensor in the control loop: flexure twist and board temperature to N·m.
 
-The factory calibration is what the paper does once per sensor (Sec. IV-A): the loading and moment
+The factory calibration is what the paper does once per sensor (Sec. III-A): the loading and moment
 protocols of :mod:`sensor.protocol` at the reference temperature, fitted by the QP (gamma chosen by the
 paper's criterion, :func:`sensor.evaluation.calibrate`) or by least squares. The readout then reads the photo-reflector array once per control tick
 with the plant's twist and the TMP117 temperature, so noise, quantisation, hysteresis, bandwidth and

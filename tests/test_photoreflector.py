@@ -18,7 +18,7 @@ def twist(tau_nm):
 
 @pytest.mark.parametrize("unit_seed", [0, 1, 2, 3])
 def test_channel_sensitivities_are_the_papers_at_the_operating_point(unit_seed):
-    """dV/dT_z at zero load lies in 0.024-0.04 V/(N·m) for every channel (paper Sec. IV-B)."""
+    """dV/dT_z at zero load lies in 0.024-0.04 V/(N·m) for every channel (paper Sec. III-B)."""
     p = P.replace(photoreflector={"unit_seed": unit_seed})
     sensor = PhotoReflectorArray(p)
     dtau = 1e-3
@@ -44,7 +44,7 @@ def test_the_voltage_swing_at_25_nm_is_the_papers_and_visibly_nonlinear():
 
 
 def test_a_two_volt_swing_is_the_papers_39718_counts():
-    """2 V on a 16-bit, 3.3 V-referenced ADC is 39,718 counts (paper Sec. IV-B)."""
+    """2 V on a 16-bit, 3.3 V-referenced ADC is 39,718 counts (paper Sec. III-B)."""
     assert 2.0 / PhotoReflectorArray(P).lsb_v == pytest.approx(39718, abs=1)
 
 
@@ -103,7 +103,7 @@ def test_play_operator_follows_only_past_its_half_width():
 
 
 def test_off_axis_moments_move_the_channels_by_about_60_mv_at_25_nm():
-    """T_x = 25 N·m changes the channels that see the tilt by about 0.06 V (paper Sec. IV-B)."""
+    """T_x = 25 N·m changes the channels that see the tilt by about 0.06 V (paper Sec. III-B)."""
     sensor = PhotoReflectorArray(P)
     v0 = sensor.ideal_voltages(twist([0.0]))[0]
     vx = sensor.ideal_voltages(twist([0.0]), tx_nm=25.0)[0]

@@ -136,7 +136,8 @@ def main(argv: list[str] | None = None) -> None:
     result = run_open_loop_step(params, tuple(args.steps), args.duration)
     print(format_result(result))
     write_outputs(args, result.to_dict(), lambda directory: plot_result(result, directory))
-    record_rerun(args, {f"open-loop step {s.command_nm:g} N·m": g for s, g in zip(result.steps, result.logs)}, params)
+    logs = {f"open-loop step {s.command_nm:g} N·m": g for s, g in zip(result.steps, result.logs, strict=True)}
+    record_rerun(args, logs, params)
 
 
 if __name__ == "__main__":

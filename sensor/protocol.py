@@ -1,5 +1,5 @@
-"""The calibration rig of the paper (Sec. III-A, Figs. 5, 6 and 8(a)-(b)), simulated: schedules of applied moments and the
-records they produce (sensor channel voltages beside the ATI MINI85 reference).
+"""The calibration rig of the paper (Sec. III-A, Figs. 5, 6 and 8(a)-(b)), simulated: schedules of applied moments and
+the records they produce (sensor channel voltages beside the ATI MINI85 reference).
 
 The sensor is bolted to the reference sensor and loaded with test weights on a lever: the loading is
 quasi-static (seconds per step against a flexure mode of kHz), so the flexure twist is the applied torque over

@@ -4,8 +4,15 @@ import numpy as np
 import pytest
 
 from models.gim8108_testbed.derived import derive
-from sensor.photoreflector import (CHANNELS, PhotoReflectorArray, draw_unit, maxwell_slip, play_operator,
-                                   reference_torque, slip_half_widths)
+from sensor.photoreflector import (
+    CHANNELS,
+    PhotoReflectorArray,
+    draw_unit,
+    maxwell_slip,
+    play_operator,
+    reference_torque,
+    slip_half_widths,
+)
 from sim.params import TestbedParams
 
 P = TestbedParams()
@@ -170,10 +177,7 @@ def test_sensing_chain_step_response_is_the_first_order_closed_form_at_the_sampl
     sensor = PhotoReflectorArray(p, sample_period_s=dt)
     n_before, n_after = 20, 200
     tw = np.concatenate([np.zeros(n_before), np.full(n_after, twist(10.0))])
-    if read_path == "read":
-        v = sensor.read(tw)
-    else:
-        v = np.array([sensor.read_sample_list(x) for x in tw])
+    v = sensor.read(tw) if read_path == "read" else np.array([sensor.read_sample_list(x) for x in tw])
     v_a, v_b = sensor.ideal_voltages(twist([0.0, 10.0]))
     # the step is applied over the period that ends at sample n_before: t - t_step = (k - n_before + 1) dt
     k = np.arange(n_after)

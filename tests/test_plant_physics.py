@@ -6,8 +6,13 @@ import numpy as np
 import pytest
 
 from models.gim8108_testbed.derived import derive, lumped_modes_hz
-from sim.characterize import (free_vibration_peak_hz, linearizable_plant, linearized_modes, measure_backlash,
-                              measure_breakaway)
+from sim.characterize import (
+    free_vibration_peak_hz,
+    linearizable_plant,
+    linearized_modes,
+    measure_backlash,
+    measure_breakaway,
+)
 from sim.params import TestbedParams
 from sim.plant import Plant
 from sim.thermal import ThermalState

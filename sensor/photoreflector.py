@@ -102,6 +102,20 @@ def maxwell_slip(x: np.ndarray, half_widths: np.ndarray, state: np.ndarray) -> t
     return np.repeat(y_runs, np.diff(np.append(starts, len(x)))), s
 
 
+def clip_nan(x, low, high):
+    """numpy's clip of x to [low, high] (the lower bound first, NaN kept): on floats by comparisons, on arrays
+    by :func:`numpy.clip`."""
+    if isinstance(x, float):
+        x = x if x > low or x != x else low
+        return x if x < high or x != x else high
+    return np.clip(x, low, high)
+
+
+def _same(a, b) -> bool:
+    """Whether two temperatures [°C] are equal: floats, or (N,) arrays element by element (NaN differs)."""
+    return a == b if isinstance(a, float) else bool(np.array_equal(a, b))
+
+
 def _as_series(name: str, value: np.ndarray | float, n: int) -> np.ndarray:
     arr = np.broadcast_to(np.asarray(value, dtype=float), (n,)) if np.ndim(value) == 0 else np.asarray(value, float)
     if arr.shape != (n,):
@@ -167,6 +181,7 @@ class PhotoReflectorArray:
         self._tilt_rows = tuple(zip(u.crosstalk_v_per_nm.tolist(), np.sin(u.angles_rad).tolist(),
                                     np.cos(u.angles_rad).tolist(), strict=True))
         self._noise_v = u.noise_v.tolist()
+        self._tempco = u.tempco_per_k
 
     @property
     def lsb_v(self) -> float:
@@ -264,7 +279,7 @@ class PhotoReflectorArray:
         """
         slipped = self._slip_sample(twist_rad)
         temp = self._reference_c if temperature_c is None else temperature_c
-        if temp != self._gain_temperature_c:  # the TMP117 moves in 7.8 m°C steps: reuse the gains between
+        if not _same(temp, self._gain_temperature_c):  # the TMP117 moves in 7.8 m°C steps: gains reused between
             self._set_gain_temperature(temp)
         v = self._optical_sample(twist_rad, slipped)
         if tx_nm or ty_nm:
@@ -273,27 +288,32 @@ class PhotoReflectorArray:
         self._filter_state = v
         return self._quantise(v)
 
-    def _slip_sample(self, twist_rad: float) -> float:
+    def _slip_sample(self, twist_rad):
         """Advance the Maxwell-slip elements to one input [rad]; their mean M(θ) [rad].
 
-        Each element is numpy's clip (NaN-propagating, the lower bound first) written out; the mean is
-        numpy's reduction of eight (its +0.0 identity plus the pairwise sum), over 8, so signed zeros, NaN
-        and ties come out as in :func:`maxwell_slip`. Written for SLIP_ELEMENTS = 8.
+        Each element is numpy's clip (NaN-propagating, the lower bound first); the mean is numpy's reduction
+        of eight (its +0.0 identity plus the pairwise sum), over 8, so signed zeros, NaN and ties come out as
+        in :func:`maxwell_slip`. Written for SLIP_ELEMENTS = 8. A float per unit, or (N,) arrays for N units
+        (:class:`PhotoReflectorStack`).
         """
-        s = []
-        for sk, h in zip(self._slip_state, self._half_widths_list):
-            lo, hi = twist_rad - h, twist_rad + h
-            sk = sk if sk > lo or sk != sk else lo
-            s.append(sk if sk < hi or sk != sk else hi)
+        if isinstance(twist_rad, float):  # clip_nan written out: a call per element costs more than the clip
+            s = []
+            for sk, h in zip(self._slip_state, self._half_widths_list):
+                lo, hi = twist_rad - h, twist_rad + h
+                sk = sk if sk > lo or sk != sk else lo
+                s.append(sk if sk < hi or sk != sk else hi)
+        else:
+            s = [clip_nan(sk, twist_rad - h, twist_rad + h) for sk, h in zip(self._slip_state, self._half_widths_list)]
         self._slip_state = s
         return (0.0 + (((s[0] + s[1]) + (s[2] + s[3])) + ((s[4] + s[5]) + (s[6] + s[7])))) / SLIP_ELEMENTS
 
     def _set_gain_temperature(self, temperature_c: float) -> None:
         """Optical gains g_k(T) [-] at a board temperature [°C] (np.exp, as the array form)."""
-        self._gain_temperature_c = temperature_c
-        self._gain = np.exp(self.unit.tempco_per_k * (temperature_c - self._reference_c)).tolist()
+        self._gain_temperature_c = temperature_c if isinstance(temperature_c, float) else np.array(temperature_c)
+        gains = np.exp(self._tempco * (temperature_c - self._reference_c))
+        self._gain = gains.tolist() if gains.ndim == 1 else list(gains)  # per channel: a float, or (N,) of N units
 
-    def _optical_sample(self, twist_rad: float, slipped_rad: float) -> list[float]:
+    def _optical_sample(self, twist_rad, slipped_rad) -> list:
         """g_k(T) · (V0_k + S_k x + Q_k x² + C_k x³ + P_k x⁴) per channel [V] for one twist and slip [rad]."""
         r = self._sensing_radius_m
         v = []
@@ -302,17 +322,26 @@ class PhotoReflectorArray:
             v.append(g * (v0 + x * (s1 + x * (s2 + x * (s3 + x * s4)))))
         return v
 
-    def _noise_and_chain(self, v: list[float]) -> list[float]:
+    def _noise_and_chain(self, v: list) -> list:
         """The channels' white noise added to the voltages [V], then the first-order sensing chain (one pass)."""
-        noisy = zip(v, self._noise.take_list(CHANNELS), self._noise_v)
-        if self._filter_state is None or not self._filtering:
-            return [vk + z * n for vk, z, n in noisy]
+        noisy = [vk + z * n for vk, z, n in zip(v, self._noise.take_list(CHANNELS), self._noise_v, strict=True)]
+        chained = self._chaining()
+        if chained is False:
+            return noisy
         a, b = self._alpha, self._one_minus_alpha
-        return [a * state + b * (vk + z * n) for state, (vk, z, n) in zip(self._filter_state, noisy)]
+        filtered = [a * state + b * vk for state, vk in zip(self._filter_state, noisy, strict=True)]
+        return filtered if chained is True else [np.where(chained, f, vk) for f, vk in zip(filtered, noisy)]
 
-    def _quantise(self, v: list[float]) -> list[float]:
+    def _chaining(self):
+        """Whether the sensing chain carries state into this sample: not on the first sample, nor when it settles
+        within one (a bool; an (N,) mask for N units)."""
+        return self._filter_state is not None and self._filtering
+
+    def _quantise(self, v: list) -> list:
         """ADC counts of the voltages times the LSB [V]: rint (half to even), clipped to [0, max count]."""
         lsb, top = self._lsb_v, self._max_count
+        if not isinstance(v[0], float):  # N units: (N,) arrays
+            return [np.clip(np.rint(vk / lsb), 0, top) * lsb for vk in v]
         try:  # round() is rint for floats (a whole count is exact in a float); the ternary is the clip
             return [(c if 0 <= (c := round(vk / lsb)) <= top else (0 if c < 0 else top)) * lsb for vk in v]
         except (ValueError, OverflowError):  # a non-finite voltage: numpy's NaN propagation and saturation
@@ -367,6 +396,118 @@ class NormalStream:
         self._next += len(held)
         rest = self._rng.standard_normal(n - len(held))
         return np.concatenate((held, rest)) if held else rest
+
+
+class NormalBank:
+    """:class:`NormalStream` of N generators at once: ``take_list(k)`` hands out the next k draws of each
+    generator as k arrays of shape (N,), the j-th holding every generator's j-th draw. Each generator's draws
+    come in its own order, so unit i gets exactly the numbers its own NormalStream would.
+
+    Parameters
+    ----------
+    n : int
+        Number of generators.
+    block : int
+        Values drawn per generator per refill (a multiple of every k taken).
+    """
+
+    def __init__(self, n: int, block: int = 64 * CHANNELS) -> None:
+        self._block = block
+        self._rngs: list[np.random.Generator | None] = [None] * n
+        self._buffer = np.empty((n, block))
+        self._next = np.full(n, block)
+        self._rows = np.arange(n)[:, None]
+
+    def set_rng(self, i: int, rng: np.random.Generator) -> None:
+        """Draw generator i's values from ``rng`` from now on (its only consumer)."""
+        self._rngs[i] = rng
+        self._next[i] = self._block
+
+    def take_list(self, k: int) -> list[np.ndarray]:
+        """The next k draws of every generator: k arrays of shape (N,)."""
+        if self._block % k:
+            raise ValueError(f"k = {k}: must divide the block of {self._block} draws")
+        for i in np.flatnonzero(self._next >= self._block).tolist():
+            self._buffer[i] = self._rngs[i].standard_normal(self._block)
+            self._next[i] = 0
+        columns = self._next[:, None] + np.arange(k)
+        self._next += k
+        return list(self._buffer[self._rows, columns].T)
+
+    def normal(self, loc: float, scale: float) -> np.ndarray:
+        """One ``Generator.normal(loc, scale)`` draw per generator, (N,): loc + scale·z, as numpy computes it."""
+        return loc + scale * self.take_list(1)[0]
+
+
+class PhotoReflectorStack(PhotoReflectorArray):
+    """N sensor units read together, one sample per unit per call: the per-tick path of
+    :class:`PhotoReflectorArray` (:meth:`read_sample_list`) on (N,) arrays, unit i as its own
+    PhotoReflectorArray (:meth:`set_unit`) reads it.
+
+    Parameters
+    ----------
+    n : int
+        Number of units; each is set by :meth:`set_unit` before the first read.
+    """
+
+    def __init__(self, n: int) -> None:  # the constants come per unit (set_unit), not from parameters
+        self.n = n
+        self._noise = NormalBank(n)
+        columns = ("sensing_radius_m", "reference_c", "max_count", "lsb_v", "alpha", "one_minus_alpha")
+        self._columns = {name: np.full(n, np.nan) for name in columns}
+        self._filtering = np.zeros(n, dtype=bool)
+        self._started = np.zeros(n, dtype=bool)
+        self._rows_arrays = np.full((8, CHANNELS, n), np.nan)  # (1 - f, f, s, V0, S, Q, C, P) x channel x unit
+        self._half_widths_arrays = np.full((SLIP_ELEMENTS, n), np.nan)
+        self._tempco = np.full((CHANNELS, n), np.nan)
+        self._noise_arrays = np.full((CHANNELS, n), np.nan)
+        self._slip_arrays = np.zeros((SLIP_ELEMENTS, n))
+        self._filter_arrays = np.zeros((CHANNELS, n))
+        self._gain_temperature_c = np.full(n, np.nan)
+        self._bind()
+
+    def _bind(self) -> None:
+        """The per-tick attributes of PhotoReflectorArray as (N,) rows of the stacked arrays."""
+        c = self._columns
+        self._sensing_radius_m, self._reference_c = c["sensing_radius_m"], c["reference_c"]
+        self._max_count, self._lsb_v = c["max_count"], c["lsb_v"]
+        self._alpha, self._one_minus_alpha = c["alpha"], c["one_minus_alpha"]
+        self._channel_rows = tuple(zip(*self._rows_arrays, strict=True))
+        self._half_widths_list = list(self._half_widths_arrays)
+        self._noise_v = list(self._noise_arrays)
+        self._slip_state = list(self._slip_arrays)
+        self._filter_state = list(self._filter_arrays)
+
+    def set_unit(self, i: int, unit: PhotoReflectorArray) -> None:
+        """Unit i becomes ``unit`` as it stands after construction (its constants, its noise generator), from
+        rest: no slip, an empty sensing chain."""
+        for name in self._columns:
+            self._columns[name][i] = getattr(unit, f"_{name}")
+        self._filtering[i] = unit._filtering
+        self._started[i] = False
+        self._rows_arrays[:, :, i] = np.array(unit._channel_rows).T
+        self._half_widths_arrays[:, i] = unit._half_widths_list
+        self._tempco[:, i] = unit._tempco
+        self._noise_arrays[:, i] = unit._noise_v
+        self._slip_arrays[:] = self._slip_state
+        self._slip_arrays[:, i] = unit._slip_state
+        self._filter_arrays[:] = self._filter_state
+        self._filter_arrays[:, i] = 0.0
+        self._gain_temperature_c = np.full(self.n, np.nan)  # the gains are recomputed at the next read
+        self._noise.set_rng(i, unit._rng)
+        self._bind()
+
+    def _chaining(self) -> np.ndarray:
+        return self._started & self._filtering
+
+    def read_sample_list(self, twist_rad, tx_nm=0.0, ty_nm=0.0, temperature_c=None) -> list[np.ndarray]:
+        """:meth:`PhotoReflectorArray.read_sample_list` of every unit: (N,) twists [rad] and temperatures [°C]
+        (required) in, eight (N,) arrays of channel voltages [V] out."""
+        if temperature_c is None:
+            raise ValueError("temperature_c: required for a stack of units, an (N,) array [°C]")
+        v = super().read_sample_list(twist_rad, tx_nm, ty_nm, temperature_c)
+        self._started[:] = True
+        return v
 
 
 def reference_torque(tau_nm: np.ndarray, params: TestbedParams, rng: np.random.Generator) -> np.ndarray:

@@ -298,12 +298,13 @@ class PhotoReflectorArray:
         """
         if isinstance(twist_rad, float):  # clip_nan written out: a call per element costs more than the clip
             s = []
-            for sk, h in zip(self._slip_state, self._half_widths_list):
+            for sk, h in zip(self._slip_state, self._half_widths_list, strict=True):
                 lo, hi = twist_rad - h, twist_rad + h
                 sk = sk if sk > lo or sk != sk else lo
                 s.append(sk if sk < hi or sk != sk else hi)
         else:
-            s = [clip_nan(sk, twist_rad - h, twist_rad + h) for sk, h in zip(self._slip_state, self._half_widths_list)]
+            s = [clip_nan(sk, twist_rad - h, twist_rad + h)
+                 for sk, h in zip(self._slip_state, self._half_widths_list, strict=True)]
         self._slip_state = s
         return (0.0 + (((s[0] + s[1]) + (s[2] + s[3])) + ((s[4] + s[5]) + (s[6] + s[7])))) / SLIP_ELEMENTS
 
@@ -330,7 +331,7 @@ class PhotoReflectorArray:
             return noisy
         a, b = self._alpha, self._one_minus_alpha
         filtered = [a * state + b * vk for state, vk in zip(self._filter_state, noisy, strict=True)]
-        return filtered if chained is True else [np.where(chained, f, vk) for f, vk in zip(filtered, noisy)]
+        return filtered if chained is True else [np.where(chained, f, vk) for f, vk in zip(filtered, noisy, strict=True)]
 
     def _chaining(self):
         """Whether the sensing chain carries state into this sample: not on the first sample, nor when it settles

@@ -285,7 +285,9 @@ def tracking_reward(error_nm, scale_nm, command_nm, box_limit_nm, ctrl_cost_weig
     """-((y - r) / s)² - w·(u / u_max)² of the tracking error y - r [N·m] (floats, or arrays across
     environments)."""
     u = command_nm / box_limit_nm
-    return -(error_nm / scale_nm) ** 2 - ctrl_cost_weight * u * u
+    e = error_nm / scale_nm
+    # a float's ** 2 is libm's pow, as numpy's float_power; numpy's ** 2 on arrays is e·e, at times 1 ulp apart
+    return -(e ** 2 if isinstance(e, float) else np.float_power(e, 2.0)) - ctrl_cost_weight * u * u
 
 
 def observation_into(observed: dict, out: np.ndarray) -> None:

@@ -44,7 +44,7 @@ class TorqueTrackingVectorEnv(VectorEnv):
     under domain randomisation (its own MjModel), its own sensor and load-cell noise. Autoreset is Gymnasium's
     ``AutoresetMode.NEXT_STEP``: the step after an episode ends resets that environment (reward 0, its reset
     info) while the others step. ``reset(options=...)`` takes the single environment's options; a value given
-    as a list or tuple of N holds one value per environment.
+    as a list or tuple of N holds one value per environment (None: not given for that one).
 
     Parameters
     ----------
@@ -182,7 +182,8 @@ class TorqueTrackingVectorEnv(VectorEnv):
             if len(values) != n:
                 raise ValueError(f"reset option {key!r}: {len(values)} values for num_envs = {n} environments")
             for opts, v in zip(per_env, values, strict=True):
-                opts[key] = v
+                if v is not None:  # None in a list: the option is not given for that environment
+                    opts[key] = v
         return [check_options(opts, self.template.nominal_params) for opts in per_env]
 
     def _reset_envs(self, ids: list[int], options: list[dict[str, Any]], infos: dict[str, Any]) -> None:

@@ -1,7 +1,8 @@
 """Speed of the Gymnasium environment against Gymnasium's InvertedPendulum-v5 in the same process, vectorised
-across two cores, and the cost of recording a run to rerun.
+across two cores, batched (``gymnasium.make_vec``), and the cost of recording a run to rerun.
 
     python -m benchmarks.bench_env [--steps 4000] [--repeats 3] [--record-s 5] [--cpu-time]
+    python -m benchmarks.bench_env --vector [--sizes 1,8,32,128] [--steps 4000] [--repeats 3]
 
 Prints env steps per second of ``torquebed/TorqueTracking-v0`` through ``gymnasium.make`` (its wrappers
 included, like the peer's), with the breakdown of one step (``Plant.step`` alone; plus the sensor readout;
@@ -11,6 +12,12 @@ per tick in µs: physics, the Python around it in ``Plant.step``, the sensor rea
 its rerun recording (``sim.recording.record_logs`` to an .rrd). ``--cpu-time`` times the in-process
 measurements by this process's CPU time instead of wall time (steadier on a loaded shared machine; the
 AsyncVectorEnv, whose work is in its workers, is then not measured).
+
+``--vector``: the batched vector environment (``vectorization_mode="vector_entry_point"``, one thread) at each
+N of ``--sizes``: env steps per CPU-second and per wall-second against the single env (``gymnasium.make``) and
+the peer's (single and ``SyncVectorEnv`` of N) in the same process; the ceiling, physics alone (MuJoCo's batch
+step against N ``mj_step`` calls of N single plants, the same ticks); the part of one batched env step each
+stage takes; and wall-clock on two threads over one.
 """
 
 from __future__ import annotations
@@ -37,10 +44,13 @@ from envs import ENV_ID
 from sensor.readout import factory_calibration
 from sim.motor_torque import CurrentToTorqueMap
 from sim.params import TestbedParams
+from sim.batched import BatchedPlant
 from sim.plant import Plant
 from sim.recording import DEFAULT_POSE_RATE_HZ, record_logs
 
 ACTION_NM = 0.3  # [N·m] a constant command: the rig loaded, the gear stuck or creeping
+VECTOR_SIZES = (1, 8, 32, 128)  # numbers of environments of the batched vector env
+CEILING_N = 32  # N of the physics-alone ceiling, the per-part breakdown and the two-thread wall-clock
 RECORD_AMPLITUDE_NM, RECORD_FREQUENCY_HZ = 0.5, 0.2  # the recorded run's reference sine [N·m], [Hz]
 
 
@@ -138,6 +148,122 @@ def vector_rate(cls, n_envs: int, steps: int, repeats: int, clock=time.perf_coun
         vec.close()
 
 
+def make_vector(n: int, nthread: int = 1):
+    """The batched vector environment of N testbeds, reset."""
+    vec = gym.make_vec(ENV_ID, num_envs=n, vectorization_mode="vector_entry_point", nthread=nthread)
+    vec.reset(seed=0)
+    return vec
+
+
+def batched_rate(vec, steps: int, repeats: int, clock=time.perf_counter) -> float:
+    """Total env steps per second of a vector env under a constant action (autoreset as it comes)."""
+    action = np.full((vec.num_envs, 1), ACTION_NM, np.float32)
+    count = max(steps // vec.num_envs, 20)
+
+    def run() -> None:
+        for _ in range(count):
+            vec.step(action)
+
+    return best_rate(run, count * vec.num_envs, repeats, clock)
+
+
+def physics_rates(n: int, steps: int, repeats: int, clock=time.perf_counter) -> dict[str, float]:
+    """Testbed ticks per second of physics alone: N single plants' ``mj_step`` (``n_substeps`` each) against
+    one batch step of N testbeds (one thread), and the same with the plants' per-tick Python (``Plant.step``
+    against ``BatchedPlant.step``)."""
+    p = TestbedParams()
+    plants = [Plant(p, "locked") for _ in range(n)]
+    batched = BatchedPlant([Plant(p, "locked") for _ in range(n)], nthread=1)
+    batched.reset(range(n))
+    for plant in plants:
+        plant.step(ACTION_NM)  # the command's ctrl stays in place for the raw steps
+    commands = np.full(n, ACTION_NM)
+    batched.step(commands)
+    count = max(steps // n, 20)
+
+    def singles() -> None:
+        for _ in range(count):
+            for plant in plants:
+                mujoco.mj_step(plant.model, plant.data, plant.n_substeps)
+
+    def batch() -> None:
+        for _ in range(count):
+            batched.batch.step(None, batched.n_substeps)
+
+    def plant_steps() -> None:
+        for _ in range(count):
+            for plant in plants:
+                plant.step(ACTION_NM)
+
+    def batched_steps() -> None:
+        for _ in range(count):
+            batched.step(commands)
+
+    return {name: best_rate(fn, count * n, repeats, clock) for name, fn in
+            (("mj_step", singles), ("batch", batch), ("Plant.step", plant_steps), ("BatchedPlant.step", batched_steps))}
+
+
+def batched_breakdown_us(n: int, steps: int, repeats: int, clock=time.perf_counter) -> dict[str, float]:
+    """µs per env step of the parts of a batched step of N envs (best of repeats each): the physics (the batch
+    step alone), the Python of ``BatchedPlant.step`` around it, the sensor read, and the rest of the vector
+    env (observation, load cell, reward, info)."""
+    vec = make_vector(n).unwrapped
+    action = np.full((n, 1), ACTION_NM, np.float32)
+    commands = np.full(n, ACTION_NM)
+    count = max(steps // n, 20)
+    per = 1e6 / (count * n)
+
+    def timed(fn) -> float:
+        def run() -> None:
+            for _ in range(count):
+                fn()
+        return per / best_rate(run, 1, repeats, clock)
+
+    total = timed(lambda: vec.step(action))
+    physics = timed(lambda: vec.plant.batch.step(None, vec.plant.n_substeps))
+    plant = timed(lambda: vec.plant.step(commands))
+    sensor = timed(lambda: vec._sensor.read(vec.plant))
+    return {"physics": physics, "plant_python": plant - physics, "sensor": sensor,
+            "env": total - plant - sensor, "total": total}
+
+
+def vector_report(sizes: list[int], steps: int, repeats: int) -> None:
+    """Print the batched vector environment's measurements (see the module docstring)."""
+    cpu = time.process_time
+    single = env_rate(steps, repeats, cpu)
+    peer = peer_rate(steps, repeats, cpu)
+    load = ", ".join(f"{x:.1f}" for x in os.getloadavg())
+    print(f"{ENV_ID} batched (make_vec, vector_entry_point, 1 thread), locked fixture, constant {ACTION_NM} N·m, "
+          f"best of {repeats} ({os.cpu_count()} CPUs, load average {load})")
+    print(f"  single env (gymnasium.make): {single:,.0f} steps per CPU-s; {PEER_ENV}: {peer:,.0f}")
+    print(f"  {'N':>4s} {'steps/CPU-s':>12s} {'x single':>9s} {'steps/wall-s':>13s} "
+          f"{'peer Sync steps/CPU-s':>22s} {'x peer Sync':>12s}")
+    for n in sizes:
+        vec = make_vector(n)
+        rate_cpu = batched_rate(vec, steps, repeats, cpu)
+        rate_wall = batched_rate(vec, steps, repeats)
+        vec.close()
+        peer_vec = gym.make_vec(PEER_ENV, num_envs=n, vectorization_mode="sync")
+        peer_vec.reset(seed=0)
+        peer_sync = batched_rate(peer_vec, steps, repeats, cpu)
+        peer_vec.close()
+        print(f"  {n:4d} {rate_cpu:12,.0f} {rate_cpu / single:9.2f} {rate_wall:13,.0f} {peer_sync:22,.0f} "
+              f"{rate_cpu / peer_sync:12.2f}")
+    n = CEILING_N
+    phys = physics_rates(n, steps, repeats, cpu)
+    print(f"  ceiling, physics alone at N = {n} (testbed ticks per CPU-s): {phys['mj_step']:,.0f} by mj_step on "
+          f"{n} plants, {phys['batch']:,.0f} by one batch step: {phys['batch'] / phys['mj_step']:.2f}x; with the "
+          f"plants' Python: Plant.step {phys['Plant.step']:,.0f}, BatchedPlant.step {phys['BatchedPlant.step']:,.0f}"
+          f" ({phys['BatchedPlant.step'] / phys['Plant.step']:.2f}x)")
+    parts = batched_breakdown_us(n, steps, repeats, cpu)
+    print(f"  one env step at N = {n}, CPU µs: physics {parts['physics']:.1f}, BatchedPlant.step Python "
+          f"{parts['plant_python']:.2f}, sensor read {parts['sensor']:.2f}, rest of the env {parts['env']:.2f} "
+          f"(total {parts['total']:.1f}; the single env: {1e6 / single:.1f})")
+    for n in sorted({CEILING_N, max(sizes)}):
+        one, two = (batched_rate(make_vector(n, nthread), steps, repeats) for nthread in (1, 2))
+        print(f"  wall-clock at N = {n}: {one:,.0f} env steps/s on 1 thread, {two:,.0f} on 2: {two / one:.2f}x")
+
+
 def recording_overhead(duration_s: float, repeats: int) -> dict[str, float]:
     """Wall time of a closed-loop run and of recording its log to an .rrd [s] (best of repeats each)."""
     p = TestbedParams()
@@ -166,10 +292,16 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--record-s", type=float, default=5.0, help="simulated seconds of the recorded run")
     parser.add_argument("--cpu-time", action="store_true",
                         help="time by this process's CPU time, not wall time (skips the AsyncVectorEnv)")
+    parser.add_argument("--vector", action="store_true", help="measure the batched vector env only")
+    parser.add_argument("--sizes", default=",".join(map(str, VECTOR_SIZES)),
+                        help="numbers of environments of --vector (default %(default)s)")
     args = parser.parse_args(argv)
     clock = time.process_time if args.cpu_time else time.perf_counter
     require_peer()
     factory_calibration(TestbedParams())  # once, before timing (and inherited by the forked workers)
+    if args.vector:
+        vector_report([int(n) for n in args.sizes.split(",")], args.steps, args.repeats)
+        return
     single = env_rate(args.steps, args.repeats, clock)
     parts = breakdown_rates(args.steps, args.repeats, clock)
     tick = tick_breakdown_us(args.steps, args.repeats, clock)

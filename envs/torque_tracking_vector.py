@@ -94,6 +94,7 @@ class TorqueTrackingVectorEnv(VectorEnv):
         self._obs = np.zeros((n, len(OBSERVATION_NAMES)))
         self._autoreset = np.zeros(n, dtype=bool)
         self._rows = np.arange(n)
+        self._reference_now = np.zeros(n)  # each environment's reference of its current tick [N·m]
         self._started = False
 
     # ------------------------------------------------------------------ gymnasium API
@@ -123,34 +124,42 @@ class TorqueTrackingVectorEnv(VectorEnv):
             raise RuntimeError("call reset() before step()")
         commands = self._commands(actions)
         n = self.num_envs
-        stepping = ~self._autoreset
         resetting = np.flatnonzero(self._autoreset).tolist()
+        stepping = ~self._autoreset
         rewards = np.zeros(n)
         terminated = np.zeros(n, dtype=bool)
         truncated = np.zeros(n, dtype=bool)
         infos: dict[str, Any] = {}
-        diverged = np.zeros(n, dtype=bool)
-        if stepping.any():
-            ref = self._references[self._rows, np.minimum(self._k, self.n_steps - 1)]
-            diverged = self.plant.step(commands, ids=None if not resetting else np.flatnonzero(stepping))
+        if len(resetting) < n:
+            ref = self._reference_now
+            diverged = self.plant.step(commands, ids=np.flatnonzero(stepping) if resetting else None)
             output = self._loadcell.read(self.plant)  # read for every testbed; those reset below discard theirs
-            graded = stepping & ~diverged
-            self._k += graded
             error = output - ref
-            rewards = np.where(graded, tracking_reward(error, self._scale, commands, self.template.box_limit_nm,
-                                                       self.template.ctrl_cost_weight), 0.0)
-            terminated = diverged.copy()
+            reward = tracking_reward(error, self._scale, commands, self.template.box_limit_nm,
+                                     self.template.ctrl_cost_weight)
+            values = (output, ref, error, commands, self.plant.time_s)
+            if resetting or diverged.any():  # the usual step has every environment graded
+                graded = stepping & ~diverged
+                reward = np.where(graded, reward, 0.0)
+                values = [np.where(graded, value, 0.0) for value in values]
+                terminated = diverged
+            else:
+                graded = stepping
+            self._k += graded
+            rewards = reward
             truncated = graded & (self._k >= self.n_steps)
-            time_s = self.plant.time_s
-            for key, value in zip(STEP_INFO, (output, ref, error, commands, time_s), strict=True):
-                infos[key], infos[f"_{key}"] = np.where(graded, value, 0.0), graded.copy()
-            infos["diverged"], infos["_diverged"] = diverged.copy(), stepping.copy()
+            for key, value in zip(STEP_INFO, values, strict=True):
+                infos[key], infos[f"_{key}"] = value, graded.copy()
+            infos["diverged"], infos["_diverged"] = diverged, stepping.copy()
             for i in np.flatnonzero(diverged).tolist():
                 self._add_info(infos, {"message": self.plant.divergence_message(i)}, i)
-        previous = self._obs.copy()
+        else:
+            diverged = terminated
+        previous = self._obs.copy() if terminated.any() else None
         self._reset_envs(resetting, [{}] * n, infos)
         self._observe()
-        self._obs[diverged] = previous[diverged]  # a diverged tick shows the last observation, as the single env
+        if previous is not None:  # a diverged tick shows the last observation, as the single env
+            self._obs[terminated] = previous[terminated]
         self._autoreset = terminated | truncated
         return self._obs.copy(), rewards, terminated, truncated, infos
 
@@ -211,7 +220,8 @@ class TorqueTrackingVectorEnv(VectorEnv):
 
     def _observe(self) -> None:
         """Every environment's observation from the loop's measurements (the last reference held at the end)."""
-        observed = self._loop.observe(self._references[self._rows, np.minimum(self._k, self.n_steps - 1)])
+        self._reference_now = self._references[self._rows, np.minimum(self._k, self.n_steps - 1)]
+        observed = self._loop.observe(self._reference_now)
         observation_into(observed, self._obs)
 
     @property

@@ -116,6 +116,28 @@ def _same(a, b) -> bool:
     return a == b if isinstance(a, float) else bool(np.array_equal(a, b))
 
 
+# The per-tick formulas, elementwise: on one channel's Python floats (PhotoReflectorArray, per channel) or on
+# (channels, units) arrays (PhotoReflectorStack, at once). IEEE arithmetic rounds alike in both.
+
+def slip_mean(s):
+    """Mean of the SLIP_ELEMENTS = 8 element states s[0] ... s[7] [rad]: numpy's reduction of eight (its +0.0
+    identity plus the pairwise sum), over 8, so signed zeros, NaN and ties come out as in :func:`maxwell_slip`
+    (floats, or rows of arrays)."""
+    return (0.0 + (((s[0] + s[1]) + (s[2] + s[3])) + ((s[4] + s[5]) + (s[6] + s[7])))) / SLIP_ELEMENTS
+
+
+def optical_voltage(twist_rad, slipped_rad, keep, f, sign, v0, s1, s2, s3, s4, gain, radius_m):
+    """g·(V0 + S x + Q x² + C x³ + P x⁴) [V], x = r·(θ·(1 - f) + M(θ)·f)·s, of a channel for the twist and the
+    slip operator's output [rad] (``keep`` = 1 - f)."""
+    x = radius_m * (twist_rad * keep + slipped_rad * f) * sign
+    return gain * (v0 + x * (s1 + x * (s2 + x * (s3 + x * s4))))
+
+
+def sensing_chain(state_v, noisy_v, alpha, one_minus_alpha):
+    """One sample of the first-order sensing chain [V]: α·state + (1 - α)·input."""
+    return alpha * state_v + one_minus_alpha * noisy_v
+
+
 def _as_series(name: str, value: np.ndarray | float, n: int) -> np.ndarray:
     arr = np.broadcast_to(np.asarray(value, dtype=float), (n,)) if np.ndim(value) == 0 else np.asarray(value, float)
     if arr.shape != (n,):
@@ -288,61 +310,43 @@ class PhotoReflectorArray:
         self._filter_state = v
         return self._quantise(v)
 
-    def _slip_sample(self, twist_rad):
-        """Advance the Maxwell-slip elements to one input [rad]; their mean M(θ) [rad].
+    def _slip_sample(self, twist_rad: float) -> float:
+        """Advance the Maxwell-slip elements to one input [rad]; their mean M(θ) [rad] (:func:`slip_mean`).
 
-        Each element is numpy's clip (NaN-propagating, the lower bound first); the mean is numpy's reduction
-        of eight (its +0.0 identity plus the pairwise sum), over 8, so signed zeros, NaN and ties come out as
-        in :func:`maxwell_slip`. Written for SLIP_ELEMENTS = 8. A float per unit, or (N,) arrays for N units
-        (:class:`PhotoReflectorStack`).
+        Each element is numpy's clip (NaN-propagating, the lower bound first; :func:`clip_nan` written out, a
+        call per element costing more than the clip).
         """
-        if isinstance(twist_rad, float):  # clip_nan written out: a call per element costs more than the clip
-            s = []
-            for sk, h in zip(self._slip_state, self._half_widths_list, strict=True):
-                lo, hi = twist_rad - h, twist_rad + h
-                sk = sk if sk > lo or sk != sk else lo
-                s.append(sk if sk < hi or sk != sk else hi)
-        else:
-            s = [clip_nan(sk, twist_rad - h, twist_rad + h)
-                 for sk, h in zip(self._slip_state, self._half_widths_list, strict=True)]
+        s = []
+        for sk, h in zip(self._slip_state, self._half_widths_list, strict=True):
+            lo, hi = twist_rad - h, twist_rad + h
+            sk = sk if sk > lo or sk != sk else lo
+            s.append(sk if sk < hi or sk != sk else hi)
         self._slip_state = s
-        return (0.0 + (((s[0] + s[1]) + (s[2] + s[3])) + ((s[4] + s[5]) + (s[6] + s[7])))) / SLIP_ELEMENTS
+        return slip_mean(s)
 
     def _set_gain_temperature(self, temperature_c: float) -> None:
         """Optical gains g_k(T) [-] at a board temperature [°C] (np.exp, as the array form)."""
-        self._gain_temperature_c = temperature_c if isinstance(temperature_c, float) else np.array(temperature_c)
-        gains = np.exp(self._tempco * (temperature_c - self._reference_c))
-        self._gain = gains.tolist() if gains.ndim == 1 else list(gains)  # per channel: a float, or (N,) of N units
+        self._gain_temperature_c = temperature_c
+        self._gain = np.exp(self._tempco * (temperature_c - self._reference_c)).tolist()
 
-    def _optical_sample(self, twist_rad, slipped_rad) -> list:
-        """g_k(T) · (V0_k + S_k x + Q_k x² + C_k x³ + P_k x⁴) per channel [V] for one twist and slip [rad]."""
+    def _optical_sample(self, twist_rad: float, slipped_rad: float) -> list[float]:
+        """:func:`optical_voltage` of each channel [V] for one twist and slip [rad]."""
         r = self._sensing_radius_m
-        v = []
-        for (keep, f, sign, v0, s1, s2, s3, s4), g in zip(self._channel_rows, self._gain):
-            x = r * (twist_rad * keep + slipped_rad * f) * sign
-            v.append(g * (v0 + x * (s1 + x * (s2 + x * (s3 + x * s4)))))
-        return v
+        return [optical_voltage(twist_rad, slipped_rad, *row, g, r)
+                for row, g in zip(self._channel_rows, self._gain, strict=True)]
 
-    def _noise_and_chain(self, v: list) -> list:
-        """The channels' white noise added to the voltages [V], then the first-order sensing chain (one pass)."""
+    def _noise_and_chain(self, v: list[float]) -> list[float]:
+        """The channels' white noise added to the voltages [V], then the first-order sensing chain (one pass;
+        none on the first sample, nor when the chain settles within one)."""
         noisy = [vk + z * n for vk, z, n in zip(v, self._noise.take_list(CHANNELS), self._noise_v, strict=True)]
-        chained = self._chaining()
-        if chained is False:
+        if self._filter_state is None or not self._filtering:
             return noisy
         a, b = self._alpha, self._one_minus_alpha
-        filtered = [a * state + b * vk for state, vk in zip(self._filter_state, noisy, strict=True)]
-        return filtered if chained is True else [np.where(chained, f, vk) for f, vk in zip(filtered, noisy, strict=True)]
+        return [sensing_chain(state, vk, a, b) for state, vk in zip(self._filter_state, noisy, strict=True)]
 
-    def _chaining(self):
-        """Whether the sensing chain carries state into this sample: not on the first sample, nor when it settles
-        within one (a bool; an (N,) mask for N units)."""
-        return self._filter_state is not None and self._filtering
-
-    def _quantise(self, v: list) -> list:
+    def _quantise(self, v: list[float]) -> list[float]:
         """ADC counts of the voltages times the LSB [V]: rint (half to even), clipped to [0, max count]."""
         lsb, top = self._lsb_v, self._max_count
-        if not isinstance(v[0], float):  # N units: (N,) arrays
-            return [np.clip(np.rint(vk / lsb), 0, top) * lsb for vk in v]
         try:  # round() is rint for floats (a whole count is exact in a float); the ternary is the clip
             return [(c if 0 <= (c := round(vk / lsb)) <= top else (0 if c < 0 else top)) * lsb for vk in v]
         except (ValueError, OverflowError):  # a non-finite voltage: numpy's NaN propagation and saturation
@@ -400,8 +404,8 @@ class NormalStream:
 
 
 class NormalBank:
-    """:class:`NormalStream` of N generators at once: ``take_list(k)`` hands out the next k draws of each
-    generator as k arrays of shape (N,), the j-th holding every generator's j-th draw. Each generator's draws
+    """:class:`NormalStream` of N generators at once: ``take(k)`` hands out the next k draws of each generator
+    as a (k, N) array. Each generator's draws
     come in its own order, so unit i gets exactly the numbers its own NormalStream would.
 
     Parameters
@@ -424,26 +428,30 @@ class NormalBank:
         self._rngs[i] = rng
         self._next[i] = self._block
 
-    def take_list(self, k: int) -> list[np.ndarray]:
-        """The next k draws of every generator: k arrays of shape (N,)."""
+    def take(self, k: int) -> np.ndarray:
+        """The next k draws of every generator, (k, N): row j holds every generator's j-th."""
         if self._block % k:
             raise ValueError(f"k = {k}: must divide the block of {self._block} draws")
-        for i in np.flatnonzero(self._next >= self._block).tolist():
-            self._buffer[i] = self._rngs[i].standard_normal(self._block)
-            self._next[i] = 0
-        columns = self._next[:, None] + np.arange(k)
-        self._next += k
-        return list(self._buffer[self._rows, columns].T)
+        if self._next.max() >= self._block:
+            for i in np.flatnonzero(self._next >= self._block).tolist():
+                self._buffer[i] = self._rngs[i].standard_normal(self._block)
+                self._next[i] = 0
+        start = self._next
+        self._next = start + k
+        if k == 1:
+            return self._buffer[self._rows[:, 0], start][None, :]
+        return self._buffer[self._rows, start[:, None] + np.arange(k)].T
 
     def normal(self, loc: float, scale: float) -> np.ndarray:
         """One ``Generator.normal(loc, scale)`` draw per generator, (N,): loc + scale·z, as numpy computes it."""
-        return loc + scale * self.take_list(1)[0]
+        return loc + scale * self.take(1)[0]
 
 
 class PhotoReflectorStack(PhotoReflectorArray):
     """N sensor units read together, one sample per unit per call: the per-tick path of
-    :class:`PhotoReflectorArray` (:meth:`read_sample_list`) on (N,) arrays, unit i as its own
-    PhotoReflectorArray (:meth:`set_unit`) reads it.
+    :class:`PhotoReflectorArray` (:meth:`read_sample_list`, its formulas :func:`optical_voltage`,
+    :func:`sensing_chain`, :func:`slip_mean`) on (channels, units) arrays, unit i as its own PhotoReflectorArray
+    (:meth:`set_unit`) reads it.
 
     Parameters
     ----------
@@ -454,61 +462,62 @@ class PhotoReflectorStack(PhotoReflectorArray):
     def __init__(self, n: int) -> None:  # the constants come per unit (set_unit), not from parameters
         self.n = n
         self._noise = NormalBank(n)
-        columns = ("sensing_radius_m", "reference_c", "max_count", "lsb_v", "alpha", "one_minus_alpha")
-        self._columns = {name: np.full(n, np.nan) for name in columns}
+        self._sensing_radius_m, self._reference_c = np.full(n, np.nan), np.full(n, np.nan)
+        self._max_count, self._lsb_v = np.full(n, np.nan), np.full(n, np.nan)
+        self._alpha, self._one_minus_alpha = np.full(n, np.nan), np.full(n, np.nan)
         self._filtering = np.zeros(n, dtype=bool)
         self._started = np.zeros(n, dtype=bool)
-        self._rows_arrays = np.full((8, CHANNELS, n), np.nan)  # (1 - f, f, s, V0, S, Q, C, P) x channel x unit
-        self._half_widths_arrays = np.full((SLIP_ELEMENTS, n), np.nan)
+        self._channel_rows = np.full((8, CHANNELS, n), np.nan)  # (1 - f, f, s, V0, S, Q, C, P) x channel x unit
+        self._half_widths = np.full((SLIP_ELEMENTS, n), np.nan)
         self._tempco = np.full((CHANNELS, n), np.nan)
-        self._noise_arrays = np.full((CHANNELS, n), np.nan)
-        self._slip_arrays = np.zeros((SLIP_ELEMENTS, n))
-        self._filter_arrays = np.zeros((CHANNELS, n))
+        self._noise_v = np.full((CHANNELS, n), np.nan)
+        self._slip_state = np.zeros((SLIP_ELEMENTS, n))
+        self._filter_state = np.zeros((CHANNELS, n))
         self._gain_temperature_c = np.full(n, np.nan)
-        self._bind()
-
-    def _bind(self) -> None:
-        """The per-tick attributes of PhotoReflectorArray as (N,) rows of the stacked arrays."""
-        c = self._columns
-        self._sensing_radius_m, self._reference_c = c["sensing_radius_m"], c["reference_c"]
-        self._max_count, self._lsb_v = c["max_count"], c["lsb_v"]
-        self._alpha, self._one_minus_alpha = c["alpha"], c["one_minus_alpha"]
-        self._channel_rows = tuple(zip(*self._rows_arrays, strict=True))
-        self._half_widths_list = list(self._half_widths_arrays)
-        self._noise_v = list(self._noise_arrays)
-        self._slip_state = list(self._slip_arrays)
-        self._filter_state = list(self._filter_arrays)
 
     def set_unit(self, i: int, unit: PhotoReflectorArray) -> None:
         """Unit i becomes ``unit`` as it stands after construction (its constants, its noise generator), from
         rest: no slip, an empty sensing chain."""
-        for name in self._columns:
-            self._columns[name][i] = getattr(unit, f"_{name}")
-        self._filtering[i] = unit._filtering
+        for name in ("_sensing_radius_m", "_reference_c", "_max_count", "_lsb_v", "_alpha", "_one_minus_alpha",
+                     "_filtering"):
+            getattr(self, name)[i] = getattr(unit, name)
         self._started[i] = False
-        self._rows_arrays[:, :, i] = np.array(unit._channel_rows).T
-        self._half_widths_arrays[:, i] = unit._half_widths_list
+        self._channel_rows[:, :, i] = np.array(unit._channel_rows).T
+        self._half_widths[:, i] = unit._half_widths_list
         self._tempco[:, i] = unit._tempco
-        self._noise_arrays[:, i] = unit._noise_v
-        self._slip_arrays[:] = self._slip_state
-        self._slip_arrays[:, i] = unit._slip_state
-        self._filter_arrays[:] = self._filter_state
-        self._filter_arrays[:, i] = 0.0
+        self._noise_v[:, i] = unit._noise_v
+        self._slip_state[:, i] = unit._slip_state
+        self._filter_state[:, i] = 0.0
         self._gain_temperature_c = np.full(self.n, np.nan)  # the gains are recomputed at the next read
         self._noise.set_rng(i, unit._rng)
-        self._bind()
 
-    def _chaining(self) -> np.ndarray:
-        return self._started & self._filtering
-
-    def read_sample_list(self, twist_rad, tx_nm=0.0, ty_nm=0.0, temperature_c=None) -> list[np.ndarray]:
+    def read_sample_list(self, twist_rad, tx_nm=0.0, ty_nm=0.0, temperature_c=None) -> np.ndarray:
         """:meth:`PhotoReflectorArray.read_sample_list` of every unit: (N,) twists [rad] and temperatures [°C]
-        (required) in, eight (N,) arrays of channel voltages [V] out."""
-        if temperature_c is None:
-            raise ValueError("temperature_c: required for a stack of units, an (N,) array [°C]")
+        (required) in, the channel voltages [V] out, (8, N)."""
+        if temperature_c is None or tx_nm or ty_nm:
+            raise ValueError("a stack of units reads (N,) twists [rad] and temperatures [°C], without moments")
         v = super().read_sample_list(twist_rad, tx_nm, ty_nm, temperature_c)
         self._started[:] = True
         return v
+
+    def _slip_sample(self, twist_rad: np.ndarray) -> np.ndarray:
+        self._slip_state = clip_nan(self._slip_state, twist_rad - self._half_widths, twist_rad + self._half_widths)
+        return slip_mean(self._slip_state)
+
+    def _set_gain_temperature(self, temperature_c: np.ndarray) -> None:
+        self._gain_temperature_c = np.array(temperature_c)
+        self._gain = np.exp(self._tempco * (temperature_c - self._reference_c))
+
+    def _optical_sample(self, twist_rad: np.ndarray, slipped_rad: np.ndarray) -> np.ndarray:
+        return optical_voltage(twist_rad, slipped_rad, *self._channel_rows, self._gain, self._sensing_radius_m)
+
+    def _noise_and_chain(self, v: np.ndarray) -> np.ndarray:
+        noisy = v + self._noise.take(CHANNELS) * self._noise_v
+        filtered = sensing_chain(self._filter_state, noisy, self._alpha, self._one_minus_alpha)
+        return np.where(self._started & self._filtering, filtered, noisy)
+
+    def _quantise(self, v: np.ndarray) -> np.ndarray:
+        return np.clip(np.rint(v / self._lsb_v), 0, self._max_count) * self._lsb_v
 
 
 def reference_torque(tau_nm: np.ndarray, params: TestbedParams, rng: np.random.Generator) -> np.ndarray:

@@ -68,6 +68,12 @@ def factory_calibration(params: TestbedParams | None = None, method: Literal["ls
     return rig.ls if method == "ls" else rig.qp
 
 
+def calibration_term(c3, c2, c1, v):
+    """One channel's share of Eq. 10, ((c3·v + c2)·v + c1)·v [N·m] for its voltage [V] (Horner): floats, or
+    (channels, sensors) arrays."""
+    return ((c3 * v + c2) * v + c1) * v
+
+
 class TorqueSensorReadout:
     """The photo-reflector sensor and its calibration, read once per control tick: the measurement
     ``tau_sensor`` [N·m] of a control loop (:class:`sim.run.Measurement`), with the eight channel voltages
@@ -121,9 +127,13 @@ class TorqueSensorReadout:
         v = self._array.read_sample_list(twist_rad, tx_nm, ty_nm, temperature_c)
         self._voltages = v
         torque = 0.0
-        for (c3, c2, c1), vk in zip(self._rows, v):
-            torque += ((c3 * vk + c2) * vk + c1) * vk
+        for term in self._terms(v):
+            torque += term
         return torque + self._offset
+
+    def _terms(self, v):
+        """Eq. 10's cubic of each channel's voltage [N·m] (:func:`calibration_term`), in channel order."""
+        return [calibration_term(c3, c2, c1, vk) for (c3, c2, c1), vk in zip(self._rows, v, strict=True)]
 
     def read(self, plant) -> float:
         """Sensor torque [N·m] for the plant's current tick (its flexure twist and TMP117 reading)."""
@@ -147,10 +157,10 @@ class TorqueSensorStack(TorqueSensorReadout):
         self.n = n
         self.calibration = calibration
         th = calibration.theta
-        self._rows = tuple(zip(th[0:8].tolist(), th[8:16].tolist(), th[16:24].tolist(), strict=True))
+        self._coefficients = th[0:8, None], th[8:16, None], th[16:24, None]  # (c3, c2, c1), channels x 1
         self._offset = float(th[24])
         self._array = PhotoReflectorStack(n)
-        self._voltages = [np.full(n, math.nan)] * CHANNELS
+        self._voltages = np.full((CHANNELS, n), math.nan)
 
     def reset(self) -> None:
         """Units are reset one by one (:meth:`set_unit`)."""
@@ -162,4 +172,8 @@ class TorqueSensorStack(TorqueSensorReadout):
     @property
     def voltages_v(self) -> np.ndarray:
         """The channel voltages [V] of the last read, (N, 8)."""
-        return np.array(self._voltages).T
+        return self._voltages.T.copy()
+
+    def _terms(self, v: np.ndarray) -> np.ndarray:
+        """(8, N): summed row by row, in channel order, as the single readout sums its channels."""
+        return calibration_term(*self._coefficients, v)

@@ -61,6 +61,7 @@ class BatchedPlant:
         self._ticks = np.zeros(self.n, dtype=np.int64)
         self._thermal_ticks = np.ones(self.n, dtype=np.int64)
         self._tmp117_c = np.full(self.n, np.nan)
+        self._until_thermal = 0  # ticks before the next testbed may be due for its thermal update (0: look now)
         self.plants: list[Plant] = [first] * self.n
         for i, plant in enumerate(plants):
             self._set_plant(i, plant)
@@ -110,6 +111,7 @@ class BatchedPlant:
             mujoco.mj_getState(plant.model, plant.data, self.batch.state[i], spec)
             self._tau_cmd[i], self._command_sq_sum[i], self._ticks[i] = 0.0, 0.0, 0
             self._tmp117_c[i] = plant.tmp117_temperature_c
+        self._until_thermal = 0  # recounted at the next step
         self.batch.forward(np.sort(np.asarray(ids, dtype=np.int32)), mujoco.mjtStage.mjSTAGE_VEL)
 
     # ------------------------------------------------------------------ stepping
@@ -129,7 +131,6 @@ class BatchedPlant:
         if tau_cmd.shape != (self.n,) or not (np.isfinite(tau_cmd).all() and np.isfinite(tau_ext_nm).all()):
             raise ValueError(f"tau_cmd_nm of shape {tau_cmd.shape}, tau_ext_nm: finite torques [N·m], one per "
                              f"testbed ({self.n},)")
-        stepped = np.ones(self.n, dtype=bool) if ids is None else np.isin(np.arange(self.n), ids)
         tau_nm, ctrl_motor = driver_input(tau_cmd, c["command_limit_nm"], c["alpha"], c["gear"])
         self._ctrl[:, self._u_motor] = ctrl_motor
         self._ctrl[:, self._u_external] = tau_ext_nm
@@ -137,15 +138,32 @@ class BatchedPlant:
         for frictionloss, value in zip(self._frictionloss, loss, strict=True):
             frictionloss[self._dof_motor] = value
         self._t_expected = self._time + self._tick_s
-        self.batch.step(None if ids is None else np.asarray(ids, dtype=np.int32), self.n_substeps)
-        self._tau_cmd = np.where(stepped, tau_cmd, self._tau_cmd)
-        self._command_sq_sum += np.where(stepped, tau_nm * tau_nm, 0.0)
-        self._ticks += stepped
-        for i in np.flatnonzero(stepped & (self._ticks % self._thermal_ticks == 0)).tolist():
-            self._tmp117_c[i] = self.plants[i].advance_thermal(float(self._command_sq_sum[i]))
-            self._command_sq_sum[i] = 0.0
-        return stepped & ((self._time < self._t_expected - self._half_step_s)
-                          | ~np.isfinite(self._qvel[:, self._dof_motor]))
+        if ids is None:
+            self.batch.step(None, self.n_substeps)
+            self._tau_cmd = tau_cmd
+            self._command_sq_sum += tau_nm * tau_nm
+            self._ticks += 1
+            stepped = None
+        else:
+            stepped = np.zeros(self.n, dtype=bool)
+            stepped[ids] = True
+            self.batch.step(np.asarray(ids, dtype=np.int32), self.n_substeps)
+            self._tau_cmd = np.where(stepped, tau_cmd, self._tau_cmd)
+            self._command_sq_sum += np.where(stepped, tau_nm * tau_nm, 0.0)
+            self._ticks += stepped
+        self._until_thermal -= 1
+        if self._until_thermal <= 0:  # some testbed may be due (the soonest one is; those not stepped are later)
+            self._thermal_updates()
+        diverged = (self._time < self._t_expected - self._half_step_s) | ~np.isfinite(self._qvel[:, self._dof_motor])
+        return diverged if stepped is None else diverged & stepped
+
+    def _thermal_updates(self) -> None:
+        """Each testbed's thermal update when its ticks since reset reach a whole update period."""
+        for i in np.flatnonzero(self._ticks % self._thermal_ticks == 0).tolist():
+            if self._ticks[i]:
+                self._tmp117_c[i] = self.plants[i].advance_thermal(float(self._command_sq_sum[i]))
+                self._command_sq_sum[i] = 0.0
+        self._until_thermal = int((self._thermal_ticks - self._ticks % self._thermal_ticks).min())
 
     def divergence_message(self, i: int) -> str:
         """Why testbed i diverged in the last :meth:`step`."""

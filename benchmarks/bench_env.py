@@ -42,9 +42,9 @@ from controllers.pi import PITorqueController
 from controllers.tracking import run_tracking
 from envs import ENV_ID
 from sensor.readout import factory_calibration
+from sim.batched import BatchedPlant
 from sim.motor_torque import CurrentToTorqueMap
 from sim.params import TestbedParams
-from sim.batched import BatchedPlant
 from sim.plant import Plant
 from sim.recording import DEFAULT_POSE_RATE_HZ, record_logs
 

@@ -8,6 +8,8 @@ import pytest
 import torquebed  # noqa: F401  (registers the environment)
 from envs import ENV_ID
 from envs.torque_tracking_vector import TorqueTrackingVectorEnv
+from envs.randomization import randomize_params
+from sensor.readout import TorqueSensorReadout, TorqueSensorStack, factory_calibration
 from sim.batched import BatchedPlant
 from sim.params import TestbedParams
 from sim.plant import Plant
@@ -48,7 +50,7 @@ def _assert_steps_equal(vec, sync, n, steps, seed, options=None, action_scale=4.
 
 
 @pytest.mark.parametrize("fixture", ["locked", "free"])
-@pytest.mark.parametrize("n", [1, 3])
+@pytest.mark.parametrize("n", [1, 3, 8])
 def test_batched_steps_equal_single_envs_in_sync_vector_env_with_randomisation_and_autoreset(n, fixture):
     """2000 random steps: observations, rewards, terminations, truncations and infos bit-identical to
     SyncVectorEnv of single environments (same seeds), across autoresets, with domain randomisation."""
@@ -138,3 +140,26 @@ def test_per_env_options_of_the_wrong_length_or_value_raise_naming_the_option():
         vec.reset(seed=0, options={"amplitude_nm": [0.1, 99.0]})
     with pytest.raises(ValueError, match="seed"):
         vec.reset(seed=[1, 2, 3])
+
+
+def test_a_sensor_stack_reads_what_each_units_own_readout_reads():
+    """Four units of randomised parameters and their own seeds, fed the same twists and stepping temperatures:
+    the stack's (N,) torques and voltages are each readout's, bit for bit, including a unit restarted midway."""
+    nominal = TestbedParams()
+    calibration = factory_calibration(nominal)
+    rng = np.random.default_rng(4)
+    params = [randomize_params(nominal, rng, 0.4) for _ in range(4)]
+    singles = [TorqueSensorReadout(p, calibration, seed=10 + i) for i, p in enumerate(params)]
+    stack = TorqueSensorStack(4, calibration)
+    for i, p in enumerate(params):
+        stack.set_unit(i, p, 10 + i)
+    twists = np.cumsum(rng.normal(0.0, 2e-4, (1500, 4)), axis=0)
+    temperatures = 25.0 + 0.0078125 * np.floor(np.arange(1500) / 100)[:, None] * np.arange(1, 5)
+    for k in range(1500):
+        if k == 700:  # unit 2 starts over with another seed
+            singles[2] = TorqueSensorReadout(params[2], calibration, seed=99)
+            stack.set_unit(2, params[2], 99)
+        got = stack.read_sample(twists[k], temperatures[k])
+        want = [s.read_sample(float(twists[k, i]), float(temperatures[k, i])) for i, s in enumerate(singles)]
+        np.testing.assert_array_equal(got, want, err_msg=f"sample {k}")
+        np.testing.assert_array_equal(stack.voltages_v, [s.voltages_v for s in singles], err_msg=f"sample {k}")

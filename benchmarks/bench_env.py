@@ -148,29 +148,46 @@ def vector_rate(cls, n_envs: int, steps: int, repeats: int, clock=time.perf_coun
         vec.close()
 
 
-def make_vector(n: int, nthread: int = 1):
+def make_vector(n: int, nthread: int = 1) -> gym.vector.VectorEnv:
     """The batched vector environment of N testbeds, reset."""
     vec = gym.make_vec(ENV_ID, num_envs=n, vectorization_mode="vector_entry_point", nthread=nthread)
     vec.reset(seed=0)
     return vec
 
 
-def batched_rate(vec, steps: int, repeats: int, clock=time.perf_counter) -> float:
-    """Total env steps per second of a vector env under a constant action (autoreset as it comes)."""
-    action = np.full((vec.num_envs, 1), ACTION_NM, np.float32)
-    count = max(steps // vec.num_envs, 20)
+def interleaved_rates(runs: dict, repeats: int, clock=time.perf_counter) -> dict[str, float]:
+    """Best rate [count/s] of each ``name: (fn, count)``, the functions run in turn once per round: on a shared
+    machine every one sees the same spells of load, so their ratios hold better than separate bests."""
+    best = dict.fromkeys(runs, 0.0)
+    for _ in range(repeats):
+        for name, (fn, count) in runs.items():
+            start = clock()
+            fn()
+            best[name] = max(best[name], count / (clock() - start))
+    return best
+
+
+def stepping(env, steps: int, value: float = ACTION_NM):
+    """(fn, env steps) of about ``steps`` env steps (a vector env's in all) under a constant action of ``value``;
+    a single env is reset when its episode ends, as a vector env autoresets."""
+    n = getattr(env, "num_envs", None)
+    space = env.single_action_space if n else env.action_space
+    action = np.full(((n,) if n else ()) + space.shape, value, space.dtype)
+    count = max(steps // (n or 1), 20)
 
     def run() -> None:
         for _ in range(count):
-            vec.step(action)
+            _, _, terminated, truncated, _ = env.step(action)
+            if n is None and (terminated or truncated):
+                env.reset()
 
-    return best_rate(run, count * vec.num_envs, repeats, clock)
+    return run, count * (n or 1)
 
 
-def physics_rates(n: int, steps: int, repeats: int, clock=time.perf_counter) -> dict[str, float]:
-    """Testbed ticks per second of physics alone: N single plants' ``mj_step`` (``n_substeps`` each) against
-    one batch step of N testbeds (one thread), and the same with the plants' per-tick Python (``Plant.step``
-    against ``BatchedPlant.step``)."""
+def physics_runs(n: int, steps: int) -> dict:
+    """Physics alone, the same testbed ticks: N single plants' ``mj_step`` (``n_substeps`` each) against one
+    batch step of N testbeds (one thread); and with the plants' per-tick Python (``Plant.step`` against
+    ``BatchedPlant.step``)."""
     p = TestbedParams()
     plants = [Plant(p, "locked") for _ in range(n)]
     batched = BatchedPlant([Plant(p, "locked") for _ in range(n)], nthread=1)
@@ -199,58 +216,61 @@ def physics_rates(n: int, steps: int, repeats: int, clock=time.perf_counter) -> 
         for _ in range(count):
             batched.step(commands)
 
-    return {name: best_rate(fn, count * n, repeats, clock) for name, fn in
-            (("mj_step", singles), ("batch", batch), ("Plant.step", plant_steps), ("BatchedPlant.step", batched_steps))}
+    return {"mj_step": (singles, count * n), "batch": (batch, count * n), "Plant.step": (plant_steps, count * n),
+            "BatchedPlant.step": (batched_steps, count * n)}
 
 
 def batched_breakdown_us(n: int, steps: int, repeats: int, clock=time.perf_counter) -> dict[str, float]:
-    """µs per env step of the parts of a batched step of N envs (best of repeats each): the physics (the batch
-    step alone), the Python of ``BatchedPlant.step`` around it, the sensor read, and the rest of the vector
-    env (observation, load cell, reward, info)."""
+    """µs per env step of the parts of a batched step of N envs (best of repeats, in turn): the physics (the
+    batch step alone), the Python of ``BatchedPlant.step`` around it, the sensor read, and the rest of the
+    vector env (observation, load cell, reward, info)."""
     vec = make_vector(n).unwrapped
     action = np.full((n, 1), ACTION_NM, np.float32)
     commands = np.full(n, ACTION_NM)
     count = max(steps // n, 20)
-    per = 1e6 / (count * n)
 
-    def timed(fn) -> float:
+    def loop(fn):
         def run() -> None:
             for _ in range(count):
                 fn()
-        return per / best_rate(run, 1, repeats, clock)
+        return run, count * n
 
-    total = timed(lambda: vec.step(action))
-    physics = timed(lambda: vec.plant.batch.step(None, vec.plant.n_substeps))
-    plant = timed(lambda: vec.plant.step(commands))
-    sensor = timed(lambda: vec._sensor.read(vec.plant))
-    return {"physics": physics, "plant_python": plant - physics, "sensor": sensor,
-            "env": total - plant - sensor, "total": total}
+    rates = interleaved_rates({"total": loop(lambda: vec.step(action)),
+                               "physics": loop(lambda: vec.plant.batch.step(None, vec.plant.n_substeps)),
+                               "plant": loop(lambda: vec.plant.step(commands)),
+                               "sensor": loop(lambda: vec._sensor.read(vec.plant))}, repeats, clock)
+    us = {name: 1e6 / rate for name, rate in rates.items()}
+    return {"physics": us["physics"], "plant_python": us["plant"] - us["physics"], "sensor": us["sensor"],
+            "env": us["total"] - us["plant"] - us["sensor"], "total": us["total"]}
 
 
 def vector_report(sizes: list[int], steps: int, repeats: int) -> None:
     """Print the batched vector environment's measurements (see the module docstring)."""
     cpu = time.process_time
-    single = env_rate(steps, repeats, cpu)
-    peer = peer_rate(steps, repeats, cpu)
     load = ", ".join(f"{x:.1f}" for x in os.getloadavg())
     print(f"{ENV_ID} batched (make_vec, vector_entry_point, 1 thread), locked fixture, constant {ACTION_NM} N·m, "
-          f"best of {repeats} ({os.cpu_count()} CPUs, load average {load})")
-    print(f"  single env (gymnasium.make): {single:,.0f} steps per CPU-s; {PEER_ENV}: {peer:,.0f}")
-    print(f"  {'N':>4s} {'steps/CPU-s':>12s} {'x single':>9s} {'steps/wall-s':>13s} "
-          f"{'peer Sync steps/CPU-s':>22s} {'x peer Sync':>12s}")
+          f"best of {repeats} taken in turn with the single env and the peer ({os.cpu_count()} CPUs, load average "
+          f"{load}); env steps per CPU-second, per wall-second")
+    print(f"  {'N':>4s} {'single':>8s} {'batched':>8s} {'x single':>9s} {'wall':>7s} {'peer':>7s} "
+          f"{'peer Sync':>10s} {'x peer Sync':>12s}")
+    single_env = gym.make(ENV_ID)
+    single_env.reset(seed=0)
+    peer = gym.make(PEER_ENV)
+    peer.reset(seed=0)
     for n in sizes:
         vec = make_vector(n)
-        rate_cpu = batched_rate(vec, steps, repeats, cpu)
-        rate_wall = batched_rate(vec, steps, repeats)
-        vec.close()
         peer_vec = gym.make_vec(PEER_ENV, num_envs=n, vectorization_mode="sync")
         peer_vec.reset(seed=0)
-        peer_sync = batched_rate(peer_vec, steps, repeats, cpu)
+        runs = {"single": stepping(single_env, steps), "batched": stepping(vec, steps),
+                "peer": stepping(peer, steps, 0.0), "peer_sync": stepping(peer_vec, steps, 0.0)}
+        r = interleaved_rates(runs, repeats, cpu)
+        wall = interleaved_rates({"batched": stepping(vec, steps)}, repeats)["batched"]
+        vec.close()
         peer_vec.close()
-        print(f"  {n:4d} {rate_cpu:12,.0f} {rate_cpu / single:9.2f} {rate_wall:13,.0f} {peer_sync:22,.0f} "
-              f"{rate_cpu / peer_sync:12.2f}")
+        print(f"  {n:4d} {r['single']:8,.0f} {r['batched']:8,.0f} {r['batched'] / r['single']:9.2f} {wall:7,.0f} "
+              f"{r['peer']:7,.0f} {r['peer_sync']:10,.0f} {r['batched'] / r['peer_sync']:12.2f}")
     n = CEILING_N
-    phys = physics_rates(n, steps, repeats, cpu)
+    phys = interleaved_rates(physics_runs(n, steps), repeats, cpu)
     print(f"  ceiling, physics alone at N = {n} (testbed ticks per CPU-s): {phys['mj_step']:,.0f} by mj_step on "
           f"{n} plants, {phys['batch']:,.0f} by one batch step: {phys['batch'] / phys['mj_step']:.2f}x; with the "
           f"plants' Python: Plant.step {phys['Plant.step']:,.0f}, BatchedPlant.step {phys['BatchedPlant.step']:,.0f}"
@@ -258,10 +278,25 @@ def vector_report(sizes: list[int], steps: int, repeats: int) -> None:
     parts = batched_breakdown_us(n, steps, repeats, cpu)
     print(f"  one env step at N = {n}, CPU µs: physics {parts['physics']:.1f}, BatchedPlant.step Python "
           f"{parts['plant_python']:.2f}, sensor read {parts['sensor']:.2f}, rest of the env {parts['env']:.2f} "
-          f"(total {parts['total']:.1f}; the single env: {1e6 / single:.1f})")
+          f"(total {parts['total']:.1f})")
     for n in sorted({CEILING_N, max(sizes)}):
-        one, two = (batched_rate(make_vector(n, nthread), steps, repeats) for nthread in (1, 2))
-        print(f"  wall-clock at N = {n}: {one:,.0f} env steps/s on 1 thread, {two:,.0f} on 2: {two / one:.2f}x")
+        one, two = make_vector(n, 1), make_vector(n, 2)
+        r = interleaved_rates({"one": stepping(one, steps), "two": stepping(two, steps)}, repeats)
+        phys_one, phys_two = (BatchedPlant([Plant(TestbedParams(), "locked") for _ in range(n)], k) for k in (1, 2))
+        count = max(steps // n, 20)
+
+        def raw(batched, count=count, n=n):
+            def run() -> None:
+                for _ in range(count):
+                    batched.batch.step(None, batched.n_substeps)
+            return run, count * n
+
+        for b in (phys_one, phys_two):
+            b.reset(range(n))
+        q = interleaved_rates({"one": raw(phys_one), "two": raw(phys_two)}, repeats)
+        print(f"  wall-clock at N = {n}, 2 threads over 1: env {r['two'] / r['one']:.2f}x ({r['one']:,.0f} -> "
+              f"{r['two']:,.0f} env steps/s), physics alone {q['two'] / q['one']:.2f}x ({q['one']:,.0f} -> "
+              f"{q['two']:,.0f} ticks/s)")
 
 
 def recording_overhead(duration_s: float, repeats: int) -> dict[str, float]:

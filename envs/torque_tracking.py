@@ -98,7 +98,9 @@ class TorqueTrackingEnv(gym.Env):
 
     ## Arguments
     ``gymnasium.make("torquebed/TorqueTracking-v0", **kwargs)`` after ``import torquebed`` (or
-    ``gymnasium.make("torquebed:torquebed/TorqueTracking-v0")``).
+    ``gymnasium.make("torquebed:torquebed/TorqueTracking-v0")``); ``gymnasium.make_vec(..., num_envs=N,
+    **kwargs)`` steps N of them together (:class:`envs.torque_tracking_vector.TorqueTrackingVectorEnv`, which
+    also takes ``nthread``).
 
     | Parameter | Type | Default | Description |
     |-----------|------|---------|-------------|

@@ -163,3 +163,22 @@ def test_a_sensor_stack_reads_what_each_units_own_readout_reads():
         want = [s.read_sample(float(twists[k, i]), float(temperatures[k, i])) for i, s in enumerate(singles)]
         np.testing.assert_array_equal(got, want, err_msg=f"sample {k}")
         np.testing.assert_array_equal(stack.voltages_v, [s.voltages_v for s in singles], err_msg=f"sample {k}")
+
+
+def test_a_longer_command_history_leaves_a_run_unchanged_and_a_shorter_one_is_refused():
+    """Plants of one nsample share a batch's data layout: a buffer longer than the delay needs holds commands the
+    delay never reads (the run is bit-identical); one too short for the delay is refused, naming nsample."""
+    p = TestbedParams()
+    commands = np.random.default_rng(8).uniform(-6.0, 6.0, 1500)
+    runs = []
+    for nsample in (None, 24):
+        plant = Plant(p, "locked", nsample=nsample)
+        plant.reset(backlash_side=1)
+        rows = np.empty((len(commands), 11))
+        for k, command in enumerate(commands):
+            plant.step(float(command))
+            plant.read_signals(rows[k])
+        runs.append(rows)
+    np.testing.assert_array_equal(runs[0], runs[1])
+    with pytest.raises(ValueError, match="nsample = 3: valid range"):
+        Plant(p, "locked", nsample=3)

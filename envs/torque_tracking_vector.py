@@ -111,7 +111,7 @@ class TorqueTrackingVectorEnv(VectorEnv):
         per_env = self._split_options(options)
         for i, s in enumerate(seeds):
             if s is not None or self._rngs[i] is None:
-                self._rngs[i], _ = seeding.np_random(s)
+                self._rngs[i], _ = seeding.np_random(int(s) if isinstance(s, np.integer) else s)
         infos: dict[str, Any] = {}
         self._reset_envs(list(range(n)), per_env, infos)
         self._autoreset[:] = False

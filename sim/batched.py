@@ -7,8 +7,9 @@ one control tick of every testbed given (the same ``n_substeps`` physics steps),
 current-to-torque map and the load-dependent gear friction of :func:`sim.plant.driver_input` and
 :func:`sim.plant.load_frictionloss` on arrays, and each plant's thermal update every
 ``thermal.update_period_s``. MuJoCo's batch is bit-identical to stepping one MjData per simulation, so
-testbed i runs exactly as ``Plant.step`` runs it alone. The named accessors are those of :class:`Plant`,
-(N,) arrays, so the measurements of :mod:`sim.measurements` read a batched plant as they read one.
+testbed i runs exactly as ``Plant.step`` runs it alone. The named accessors the measurements read
+(:mod:`sim.measurements`, the optical sensor) are :class:`Plant`'s as (N,) arrays, so they read a batched plant
+as they read one.
 """
 
 from __future__ import annotations

@@ -405,8 +405,8 @@ class NormalStream:
 
 class NormalBank:
     """:class:`NormalStream` of N generators at once: ``take(k)`` hands out the next k draws of each generator
-    as a (k, N) array. Each generator's draws
-    come in its own order, so unit i gets exactly the numbers its own NormalStream would.
+    as a (k, N) array. Each generator's draws come in its own order, so unit i gets exactly the numbers its own
+    NormalStream would.
 
     Parameters
     ----------

@@ -8,8 +8,8 @@ Prints env steps per second of ``torquebed/TorqueTracking-v0`` through ``gymnasi
 included, like the peer's), with the breakdown of one step (``Plant.step`` alone; plus the sensor readout;
 per tick in µs: physics, the Python around it in ``Plant.step``, the sensor read, environment and wrappers),
 ``AsyncVectorEnv`` and ``SyncVectorEnv`` with 2 environments (total env steps per second), the peer's
-``env.step`` rate, and the slow-down of a closed-loop run (``controllers.tracking.run_tracking``, sensor feedback) by writing
-its rerun recording (``sim.recording.record_logs`` to an .rrd). ``--cpu-time`` times the in-process
+``env.step`` rate, and the slow-down of a closed-loop run (``controllers.tracking.run_tracking``, sensor
+feedback) by writing its rerun recording (``sim.recording.record_logs`` to an .rrd). ``--cpu-time`` times the in-process
 measurements by this process's CPU time instead of wall time (steadier on a loaded shared machine; the
 AsyncVectorEnv, whose work is in its workers, is then not measured).
 

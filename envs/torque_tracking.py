@@ -62,10 +62,10 @@ class TorqueTrackingEnv(gym.Env):
     | Num | Observation | Unit | Source |
     |-----|-------------|------|--------|
     | 0 | torque reference of this tick | N·m | the task's profile |
-    | 1 | joint torque sensor reading | N·m | photo-reflector array through its factory calibration (noise, ADC, hysteresis, drift) |
+    | 1 | joint torque sensor reading | N·m | photo-reflectors, factory calibration (noise, ADC, hysteresis, drift) |
     | 2 | motor angle, output side | rad | encoder |
     | 3 | motor velocity, output side | rad/s | driver |
-    | 4 | driver's current-based torque estimate | N·m | N·K_t·i through the inverse current-to-torque map (``sim.measurements.CurrentEstimate``) |
+    | 4 | driver's current-based torque estimate | N·m | N·K_t·i, inverse current map (``CurrentEstimate``) |
     | 5 | sensor board temperature | °C | TMP117 reading |
 
     The load-cell torque is not observed (it is what the reward grades); it is in ``info``.
@@ -104,11 +104,11 @@ class TorqueTrackingEnv(gym.Env):
 
     | Parameter | Type | Default | Description |
     |-----------|------|---------|-------------|
-    | ``task`` | str | ``"any"`` | reference profile: ``"step"``, ``"sine"``, ``"square"``, ``"random"`` or ``"any"`` (one drawn per episode) |
+    | ``task`` | str | ``"any"`` | ``"step"``, ``"sine"``, ``"square"``, ``"random"`` or ``"any"`` (one per episode) |
     | ``episode_duration_s`` | float | 2.0 | episode length [s] (whole control ticks) |
     | ``fixture`` | str | ``"locked"`` | ``"locked"``: lever on the load cell; ``"free"``: lever turns freely |
     | ``feedback_noise`` | bool | True | sensor channel noise and load-cell reading noise on / off |
-    | ``domain_randomization`` | bool | False | draw plant and sensor parameters per episode (:mod:`envs.randomization`) |
+    | ``domain_randomization`` | bool | False | plant and sensor parameters per episode (:mod:`envs.randomization`) |
     | ``randomization_scale`` | float | 0.2 | relative spread s of the randomisation, in [0, 0.5] |
     | ``ctrl_cost_weight`` | float | 0.0 | weight of the control cost in the reward |
     | ``params`` | TestbedParams | defaults | nominal parameter set |

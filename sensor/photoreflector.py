@@ -305,7 +305,7 @@ class PhotoReflectorArray:
             self._set_gain_temperature(temp)
         v = self._optical_sample(twist_rad, slipped)
         if tx_nm or ty_nm:
-            v = [vk + x * (tx_nm * s - ty_nm * c) for vk, (x, s, c) in zip(v, self._tilt_rows)]
+            v = [vk + x * (tx_nm * s - ty_nm * c) for vk, (x, s, c) in zip(v, self._tilt_rows, strict=True)]
         v = self._noise_and_chain(v)
         self._filter_state = v
         return self._quantise(v)

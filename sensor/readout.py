@@ -2,9 +2,9 @@
 
 The factory calibration is what the paper does once per sensor (Sec. III-A): the loading and moment
 protocols of :mod:`sensor.protocol` at the reference temperature, fitted by the QP (gamma chosen by the
-paper's criterion, :func:`sensor.evaluation.calibrate`) or by least squares. The readout then reads the photo-reflector array once per control tick
-with the plant's twist and the TMP117 temperature, so noise, quantisation, hysteresis, bandwidth and
-thermal drift reach the controller.
+paper's criterion, :func:`sensor.evaluation.calibrate`) or by least squares. The readout then reads the
+photo-reflector array once per control tick with the plant's twist and the TMP117 temperature, so noise,
+quantisation, hysteresis, bandwidth and thermal drift reach the controller.
 """
 
 from __future__ import annotations

@@ -44,7 +44,7 @@ class CurrentToTorqueMap:
     peak_torque_nm: float
 
     @classmethod
-    def from_params(cls, params: TestbedParams) -> "CurrentToTorqueMap":
+    def from_params(cls, params: TestbedParams) -> CurrentToTorqueMap:
         return cls(params.motor.torque_saturation_per_nm, params.motor.peak_torque_nm)
 
     @property

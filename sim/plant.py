@@ -21,7 +21,6 @@ from sim.motor_torque import CurrentToTorqueMap
 from sim.params import TestbedParams
 from sim.thermal import ThermalState
 
-
 CURRENT_PRIMING_TIME_CONSTANTS = 10  # hold_commands replays the current loop over this many time constants
 # Signals a run records every tick (see read_signals): name -> unit. Standard run-log names where they exist.
 SIGNAL_UNITS: dict[str, str] = {

@@ -7,8 +7,8 @@ import pytest
 
 import torquebed  # noqa: F401  (registers the environment)
 from envs import ENV_ID
-from envs.torque_tracking_vector import TorqueTrackingVectorEnv
 from envs.randomization import randomize_params
+from envs.torque_tracking_vector import TorqueTrackingVectorEnv
 from sensor.readout import TorqueSensorReadout, TorqueSensorStack, factory_calibration
 from sim.batched import BatchedPlant
 from sim.params import TestbedParams

@@ -14,8 +14,14 @@ from typing import TYPE_CHECKING
 import mujoco
 
 from models.errors import ParameterError
-from models.gim8108_testbed.derived import (FIXTURES, SOLVER_TIME_CONSTANTS, derive, implicit_joint_damping,
-                                            physics_timestep, solver_time_constants)
+from models.gim8108_testbed.derived import (
+    FIXTURES,
+    SOLVER_TIME_CONSTANTS,
+    derive,
+    implicit_joint_damping,
+    physics_timestep,
+    solver_time_constants,
+)
 
 if TYPE_CHECKING:
     from sim.params import TestbedParams

@@ -37,6 +37,7 @@ from sim.discrepancy.model import bristle_state, stribeck_level
 from sim.discrepancy.rig import Rig
 from sim.discrepancy.signals import AnalysisConfig, Prepared
 from sim.discrepancy.simulate import InitialState, run_rigid, run_testbed, testbed_plant
+from sim.run import run_open_loop
 from sim.runlog import RunLog
 
 
@@ -152,8 +153,7 @@ def stop_compliance_rad_per_nm(rig: Rig) -> float:
         raise ValueError("the stop's compliance is measured on the locked fixture")
     plant = testbed_plant(rig)
     plant.reset(backlash_side=1)
-    for _ in range(STOP_CALIBRATION_TICKS):
-        plant.step(STOP_CALIBRATION_NM)
+    run_open_loop(plant, np.full(STOP_CALIBRATION_TICKS, STOP_CALIBRATION_NM), progress=False)
     depth = abs(plant.backlash_angle_rad) - 0.5 * rig.params.backlash.width_rad
     return max(depth, 0.0) / abs(plant.flexure_torque_nm)
 

@@ -39,7 +39,7 @@ from sim.discrepancy.selection import (
     carried_by_model,
     effort_change,
     held_out_score,
-    make_pool,
+    make_executor,
     run_round,
 )
 from sim.discrepancy.signals import (
@@ -317,41 +317,38 @@ def analyse(log: RunLog, rig: Rig, config: AnalysisConfig | None = None, *, prog
     rounds: list[list[Candidate]] = []
     notes: list[str] = []
     dropped: list[dict[str, str]] = []
-    pool = make_pool(model)
+    executor = make_executor(config)
     current, current_score = theta, before
-    try:
-        while candidates and len(findings) < config.max_effects:
-            label = f"round {len(rounds) + 1}, "
-            _progress(f"round {len(rounds) + 1}: {len(candidates)} candidate effects, each fitted with "
-                      f"{len(accepted)} accepted parameter(s)", progress)
-            scores = run_round(model, candidates, current, accepted, scales, current_score, pool, progress, label)
-            t_null = time.perf_counter()
-            best, note = _first_passing(scores, sources, rig, config, model, current, findings, accepted, scales)
-            timings["model_log_s"] = timings.get("model_log_s", 0.0) + time.perf_counter() - t_null
-            rounds.append(scores)
-            if note:
-                notes.append(note)
-            if best is None:
-                break
-            channel = best.best_channel
-            findings.append(Finding(
-                effect=best.effect, kind=_kind(best.effect, theta0),
-                parameters={}, rmse_heldout_before=current_score.rmse[channel],
-                rmse_heldout_after=best.score.rmse[channel], gain=best.gains[channel],
-                evidence=_evidence(best, model, current, channel)))
-            _progress(f"found {best.effect} (held-out {channel} RMSE -{100 * best.gains[channel]:.1f} %, "
-                      f"ΔBIC {best.delta_bic:.1f})", progress)
-            accepted = tuple(dict.fromkeys(EFFECTS[best.effect].keys + accepted))
-            current, current_score = best.fit.theta, best.score
-            candidates = [c for c in candidates if c != best.effect]
-            while (pruned := _prune(model, findings, current, current_score, accepted, scales)) is not None:
-                finding, current, current_score, accepted, reason = pruned
-                findings.remove(finding)
-                dropped.append({"effect": finding.effect, "reason": reason})
-                _progress(f"dropped {finding.effect}: {reason}", progress)
-    finally:
-        if pool is not None:
-            pool.shutdown()
+    while candidates and len(findings) < config.max_effects:
+        label = f"round {len(rounds) + 1}, "
+        _progress(f"round {len(rounds) + 1}: {len(candidates)} candidate effects, each fitted with "
+                  f"{len(accepted)} accepted parameter(s)", progress)
+        scores = run_round(model, candidates, current, accepted, scales, current_score, executor, progress,
+                           label)
+        t_null = time.perf_counter()
+        best, note = _first_passing(scores, sources, rig, config, model, current, findings, accepted, scales)
+        timings["model_log_s"] = timings.get("model_log_s", 0.0) + time.perf_counter() - t_null
+        rounds.append(scores)
+        if note:
+            notes.append(note)
+        if best is None:
+            break
+        channel = best.best_channel
+        findings.append(Finding(
+            effect=best.effect, kind=_kind(best.effect, theta0),
+            parameters={}, rmse_heldout_before=current_score.rmse[channel],
+            rmse_heldout_after=best.score.rmse[channel], gain=best.gains[channel],
+            evidence=_evidence(best, model, current, channel)))
+        _progress(f"found {best.effect} (held-out {channel} RMSE -{100 * best.gains[channel]:.1f} %, "
+                  f"ΔBIC {best.delta_bic:.1f})", progress)
+        accepted = tuple(dict.fromkeys(EFFECTS[best.effect].keys + accepted))
+        current, current_score = best.fit.theta, best.score
+        candidates = [c for c in candidates if c != best.effect]
+        while (pruned := _prune(model, findings, current, current_score, accepted, scales)) is not None:
+            finding, current, current_score, accepted, reason = pruned
+            findings.remove(finding)
+            dropped.append({"effect": finding.effect, "reason": reason})
+            _progress(f"dropped {finding.effect}: {reason}", progress)
     timings["selection_s"] = time.perf_counter() - t
     findings = [replace(f, parameters=_parameters(f.effect, theta0, current, model)) for f in findings]
 

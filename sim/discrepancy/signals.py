@@ -99,7 +99,10 @@ class AnalysisConfig:
     replay_window_s : float
         Length of the MuJoCo replay windows, each re-initialised from the measured state [s].
     workers : int
-        Processes for the candidate fits (1: in this process).
+        Processes for the candidate fits (1: in this process; each worker runs one BLAS thread).
+    ray : str or None
+        A Ray cluster for the candidate fits (``"local"``: start one on this machine; an address; ``"auto"``),
+        instead of ``workers`` local processes (:class:`sim.executor.Executor`).
     model_log_seed : int
         Seed of the noise drawn for the model's own log (:mod:`sim.discrepancy.null`).
     max_effects : int
@@ -122,6 +125,7 @@ class AnalysisConfig:
     stability_tolerance: float = 0.2
     replay_window_s: float = 0.5
     workers: int = 1
+    ray: str | None = None
     model_log_seed: int = 0
     max_effects: int = 6
 
@@ -139,6 +143,8 @@ class AnalysisConfig:
             if not (low <= value <= high) or (name in ("filter_cutoff_hz", "replay_window_s", "block_s")
                                               and value == 0):
                 raise ValueError(f"{name} = {value!r}: valid range [{low:g}, {high:g}]")
+        if self.ray is not None and (not isinstance(self.ray, str) or not self.ray):
+            raise ValueError(f"ray = {self.ray!r}: None, 'local', 'auto' or a cluster's address")
         for name in ("workers", "max_effects"):
             if getattr(self, name) < 1:
                 raise ValueError(f"{name} = {getattr(self, name)}: valid range [1, inf)")

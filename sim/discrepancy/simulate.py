@@ -33,8 +33,15 @@ import numpy as np
 
 from sim.discrepancy.effects import EFFECTS, Realisation
 from sim.discrepancy.rig import Rig
-from sim.measurements import (CurrentEstimate, FlexureTorque, LeverAngle, LeverVelocity, LoadCellForce, MotorEncoder,
-                               MotorVelocity)
+from sim.measurements import (
+    CurrentEstimate,
+    FlexureTorque,
+    LeverAngle,
+    LeverVelocity,
+    LoadCellForce,
+    MotorEncoder,
+    MotorVelocity,
+)
 from sim.plant import SIGNAL_UNITS, Plant, prime_ctrl_history, warn_mujoco_warnings
 from sim.run import run_loop
 

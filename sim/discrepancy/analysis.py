@@ -191,8 +191,9 @@ def join_and_prepare(sources: list[Source], rig: Rig, config: AnalysisConfig
     if factor == 1:
         return joined, segments, 1, prepare(joined, rig, config, segments=segments or None)
     resolution = smallest_step(joined["q"])
+    bounds = tuple((a, b) for a, b, _ in segments)
     segments = [(-(-a // factor), -(-b // factor), f) for a, b, f in segments]
-    data = prepare(decimate(joined, factor), rig, config, segments=segments or None, hold_s=dt,
+    data = prepare(decimate(joined, factor, bounds), rig, config, segments=segments or None, hold_s=dt,
                    resolution=resolution)
     return joined, segments, factor, data
 

@@ -80,7 +80,7 @@ def measured_state(log: RunLog, rig: Rig, data: Prepared, *, at_rest: bool = Fal
     """
     if rig.model != "testbed":
         q = np.asarray(log["q"], dtype=float)
-        velocity = np.gradient(data.filt_full(q), data.dt)
+        velocity = data.gradient(data.filt_full(q))
         if at_rest:
             velocity = np.zeros(len(q))
 
@@ -97,14 +97,14 @@ def measured_state(log: RunLog, rig: Rig, data: Prepared, *, at_rest: bool = Fal
     half_gap = 0.5 * rig.params.backlash.width_rad
     bristle = measured_bristle_rad(rig, data) * rig.params.motor.gear_ratio  # motor side: MuJoCo's dcmotor state
     q_motor, q_lever = _motor_angle(log, data), _lever_angle(log, data)
-    velocity = np.gradient(q_motor, data.dt)
+    velocity = data.gradient(q_motor)
     if "force_loadcell" in log.columns:
         tau = data.filt_full(np.asarray(log["force_loadcell"], dtype=float) * rig.params.lever.length_m)
     elif "tau_sensor" in log.columns:
         tau = data.filt_full(np.asarray(log["tau_sensor"], dtype=float))
     else:
         tau = np.zeros(len(q_motor))
-    flex_rate = -np.gradient(tau, data.dt) / k_t  # rates from the filtered load (the raw reading is noisy)
+    flex_rate = -data.gradient(tau) / k_t  # rates from the filtered load (the raw reading is noisy)
     locked = rig.fixture == "locked" and "force_loadcell" in log.columns
     if locked:
         # The load cell's own deflection places the lever, the motor sits behind it by the flexure's twist and the
@@ -114,7 +114,7 @@ def measured_state(log: RunLog, rig: Rig, data: Prepared, *, at_rest: bool = Fal
         # Positions from the raw reading: the 25 Hz filter rounds the load's stick-slip corners by several
         # 0.01 N·m, which a window starting there would keep in the flexure.
         k_lc = derived.loadcell_rot_stiffness_nm_per_rad
-        velocity = np.gradient(tau, data.dt) / k_lc - flex_rate
+        velocity = data.gradient(tau) / k_lc - flex_rate
         tau = np.asarray(log["force_loadcell"], dtype=float) * rig.params.lever.length_m
         q_lever_loadcell = tau / k_lc
         stop_rad_per_nm = stop_compliance_rad_per_nm(rig)

@@ -42,7 +42,7 @@ from sim.discrepancy.selection import (
     event_test,
     passes_events,
 )
-from sim.discrepancy.signals import derivative, rms
+from sim.discrepancy.signals import rms
 
 SPECTRAL_TERMS = 2  # spectral lines of the residual in the generic basis
 WHITENESS_LAGS = 10  # Ljung-Box lags (independent samples)
@@ -118,7 +118,7 @@ def _basis(model: Surrogate, residual: np.ndarray) -> dict[str, list[np.ndarray]
     terms: dict[str, list[np.ndarray]] = {
         "velocity": [v], "velocity squared": [v * np.abs(v)], "sign of velocity": [np.where(sliding, np.sign(v), 0.0)],
         "acceleration": [d.acceleration], "position": [d.position],
-        "command rate": [d.filt(derivative(d.u_full, d.dt))], "time": [d.t - d.t[0]],
+        "command rate": [d.filt(d.derivative(d.u_full))], "time": [d.t - d.t[0]],
     }
     sign = np.where(sliding, np.sign(v), 0.0)
     x = d.position - float(np.mean(d.position))

@@ -5,7 +5,6 @@ from __future__ import annotations
 import numpy as np
 
 from sim.discrepancy.effects.base import Effect, Param
-from sim.discrepancy.signals import derivative
 
 MAX_DELAY_S = 0.05  # [s] the largest dead time fitted (the testbed's motor.command_delay_s allows up to 50 ms)
 MAX_DELAY_OF_DURATION = 0.05  # and at most 5 % of the log
@@ -36,7 +35,7 @@ class TransportDelay(Effect):
         return None
 
     def signature_signal(self, model, theta):
-        return model.data.filt(derivative(model.data.u_full, model.data.dt))
+        return model.data.filt(model.data.derivative(model.data.u_full))
 
     def draw(self, rig, rng):
         base = rig.params.motor.command_delay_s if rig.model == "testbed" else rig.rigid.get("delay", 0.0)

@@ -8,6 +8,7 @@ from pathlib import Path
 import numpy as np
 
 from sim.discrepancy.analysis import DiscrepancyResult
+from sim.discrepancy.effects import EFFECTS
 from sim.figures import save_figure
 
 SIGNATURES_SHOWN = 6  # strongest signatures listed in the text report
@@ -93,7 +94,9 @@ def format_result(result: DiscrepancyResult) -> str:
                      f"final {e['final']:.4f}")
     lines.append("The logs cannot reveal:")
     for name, why in b["not_identifiable"].items():
-        lines.append(f"  {name}: {why}")
+        effect = EFFECTS[name]
+        fine = ", with a fine motor encoder" if effect.needs_fine_motor_encoder else ""
+        lines.append(f"  {name}: {why} (the {effect.revealing_experiment!r} experiment reveals it{fine})")
     if result.replay.get("skipped"):
         lines.append(f"MuJoCo replay skipped: {result.replay['skipped']}")
     elif result.replay:

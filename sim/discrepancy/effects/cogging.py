@@ -39,6 +39,7 @@ def candidate_periods(model, position_span: float) -> np.ndarray:
 
 class Cogging(Effect):
     name = "cogging"
+    revealing_experiment = "free"
     description = "position-periodic torque of the magnets"
     params = (Param("cogging_amplitude", "N·m", "N", "cogging amplitude A"),
               Param("cogging_period", "rad", "m", "period P in joint position", neutral=None, default=1.0),

@@ -29,6 +29,7 @@ def frequency_range(model) -> tuple[float, float]:
 
 class PeriodicDisturbance(Effect):
     name = "periodic_disturbance"
+    revealing_experiment = "free"
     description = "effort at a fixed frequency, not locked to position (unbalance, a pump)"
     params = (Param("disturbance_amplitude", "N·m", "N", "amplitude A"),
               Param("disturbance_frequency", "Hz", "Hz", "frequency f", neutral=None, default=1.0,

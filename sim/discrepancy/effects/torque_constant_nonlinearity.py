@@ -26,6 +26,7 @@ def rolled_off(u: np.ndarray | float, rolloff: float, peak: float) -> np.ndarray
 
 class TorqueConstantNonlinearity(Effect):
     name = "torque_constant_nonlinearity"
+    revealing_experiment = "locked"
     description = "torque per command falling at high current (magnetic saturation)"
     params = (Param("torque_rolloff", "1", "1", "fraction of the command lost at peak effort", valid=BOUNDS,
                     firm=True),)

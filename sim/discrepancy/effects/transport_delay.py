@@ -14,6 +14,7 @@ EXTRA_DELAY_S = (1.5e-3, 5.5e-3)  # synthetic draws: [s] added to the rig's dead
 
 class TransportDelay(Effect):
     name = "transport_delay"
+    revealing_experiment = "free"
     description = "dead time between the logged command and the torque"
     params = (Param("delay", "s", "s", "command-to-effort dead time",
                     fields={"testbed": "motor.command_delay_s", "hinge": "delay_s", "slide": "delay_s"},

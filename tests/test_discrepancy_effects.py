@@ -689,11 +689,14 @@ def test_mujoco_hinge_gravity_settles_at_q0_plus_asin_u_over_a(carried_by):
     assert settle_hinge(rig, u, q0)[-1] == pytest.approx(q0 + math.asin(u / a), abs=1e-7)
 
 
-def test_mujoco_slide_gravity_accelerates_at_u_minus_a_over_m():
-    """A slide needs the constant A: q̇ = ((u - A)/m)·t."""
+@pytest.mark.parametrize("carried_by", ["effect", "rig"])
+def test_mujoco_slide_gravity_accelerates_at_u_minus_a_over_m(carried_by):
+    """A slide needs the constant A: q̇ = ((u - A)/m)·t, whether an added effect or the rig's own field carries it
+    (as on the hinge)."""
     a, u = -2.0, 3.0
-    t, v = final_velocity(rigid_rig("slide", M_SLIDE, effects=(effect("gravity", gravity_amplitude=a,
-                                                                      gravity_angle=0.0),)), u)
+    rig = (rigid_rig("slide", M_SLIDE, effects=(effect("gravity", gravity_amplitude=a, gravity_angle=0.0),))
+           if carried_by == "effect" else rigid_rig("slide", M_SLIDE, gravity_amplitude=a))
+    t, v = final_velocity(rig, u)
     assert v == pytest.approx((u - a) / M_SLIDE * t, rel=EXACT)
 
 

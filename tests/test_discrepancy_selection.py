@@ -1,16 +1,20 @@
-"""The candidate fits on the project's executor: the same result in this process and on worker processes, and
-one BLAS thread per worker process while this process keeps its own count."""
+"""The selection's machinery: the candidate fits on the project's executor (the same result in this process and
+on worker processes, one BLAS thread per worker process while this process keeps its own count), and the
+remainder's robust size."""
 
 from __future__ import annotations
 
 from types import SimpleNamespace
 
+import numpy as np
+import pytest
 import threadpoolctl
 
 from experiments.synthetic_logs import hidden_effect_log
 from sim.discrepancy import selection
 from sim.discrepancy.analysis import analyse
-from sim.discrepancy.signals import AnalysisConfig
+from sim.discrepancy.signals import AnalysisConfig, rms
+from sim.discrepancy.structure import median_block_rms
 from sim.executor import Executor
 
 
@@ -47,3 +51,26 @@ def test_worker_processes_fit_with_one_blas_thread_and_this_process_keeps_its_co
     assert [c.delta_bic for c in in_workers] == [1.0] * 4
     assert [c.delta_bic for c in here] == [float(max(before))] * 4
     assert _blas_threads() == before
+
+
+def test_median_block_rms_ignores_one_transient_block():
+    rng = np.random.default_rng(0)
+    x = rng.normal(0.0, 1.0, 2000)
+    x[1000:1040] += 30.0  # one transient: dominates the RMS of the whole, not the typical block
+    assert rms(x) > 4.0
+    assert median_block_rms(x, 100) == pytest.approx(1.0, rel=0.1)
+
+
+def test_a_transient_in_the_held_out_part_does_not_make_the_remainder_large():
+    """A 40 ms command glitch the rig did not follow, in the held-out part of a log of the rig itself: the RMS of
+    the held-out effort error exceeds ``max_remainder`` of the command, the remainder (median block RMS) does
+    not."""
+    log, rig, _ = hidden_effect_log("locked", [], 6, 8.0)
+    u = np.asarray(log["tau_cmd"], dtype=float).copy()
+    u[6500:6540] += 3.0
+    glitched = type(log)({**log.columns, "tau_cmd": u}, dict(log.units), dict(log.meta))
+    config = AnalysisConfig()
+    result = analyse(glitched, rig, config)
+    command_rms = rms(np.asarray(log["tau_cmd"])[int(0.6 * len(log)):])
+    assert result.structure.rmse["effort"] / command_rms > config.max_remainder
+    assert result.structure.remainder_fraction < config.max_remainder

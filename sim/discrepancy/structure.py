@@ -11,14 +11,15 @@ significance rule as a candidate effect):
 - the strongest lines of the residual's spectrum on the fit part (each a sine and a cosine in time).
 
 The command itself is not in the basis: with it, the basis holds every term of the balance and rebuilds any
-residual by scaling the whole balance to nothing. If the final model's held-out effort error (the median of its RMS per
-block of ``block_s``, :func:`median_block_rms`) exceeds ``max_remainder`` of the command (RMS), or if that generic model explains a significant part of the held-out
-residual (the candidates' rules 'bic', 'gain', 'size' and 'events'), the verdict is a discrepancy the
-library does not name, described by the basis terms that carry it ("effort error grows with v|v|", "a 6.0 Hz
-line not locked to position"), with the RMSE it leaves. So is a candidate effect that would explain a third or
-more of the residual but was refused because its parameters sit at a bound of the rig's plausible range or drift
-across the log (non-stationary): the nearest library effect is then named as not fitting, not as the finding.
-The whiteness of the held-out residual (Ljung-Box, at the band's rate of independent samples) is reported beside.
+residual by scaling the whole balance to nothing. If the final model's held-out effort error (the median of its RMS
+per block of ``block_s``, :func:`median_block_rms`) exceeds ``max_remainder`` of the command (RMS), or if that
+generic model explains a significant part of the held-out residual (the candidates' rules 'bic', 'gain', 'size' and
+'events'), the verdict is a discrepancy the library does not name, described by the basis terms that carry it
+("effort error grows with v|v|", "a 6.0 Hz line not locked to position"), with the RMSE it leaves. So is a
+candidate effect that would explain a third or more of the residual but was refused because its parameters sit at a
+bound of the rig's plausible range or drift across the log (non-stationary): the nearest library effect is then
+named as not fitting, not as the finding. The whiteness of the held-out residual (Ljung-Box, at the band's rate of
+independent samples) is reported beside.
 """
 
 from __future__ import annotations

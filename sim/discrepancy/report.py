@@ -51,7 +51,7 @@ def format_result(result: DiscrepancyResult) -> str:
                      f"the rig's value is far off, or another effect pulls it there")
         lines.append(line)
     lines.append("Baseline held-out RMSE: " + ", ".join(
-        f"{c} {v:.4g} {result.units[c]}" if math.isfinite(v) else f"{c} n/a (no sample counts)"
+        f"{c} {v:.4g} {result.units[c]}" if math.isfinite(v) else f"{c} n/a (no held-out samples)"
         for c, v in b["rmse_heldout"].items()))
     lines.append("Strongest signatures in the baseline residual (held-out correlation; a shape the residual "
                  "resembles is a candidate, a finding needs the significance rule):")
@@ -85,6 +85,8 @@ def format_result(result: DiscrepancyResult) -> str:
         lines += [f"  {line}" for line in s.description + s.refused]
     lines.append("Residual left (held out): " + ", ".join(f"{c} {v:.4g} {result.units[c]}"
                                                           for c, v in s.rmse.items() if math.isfinite(v))
+                 + f"; effort error in a typical {result.baseline['config']['block_s']:g} s block (median) "
+                 f"{100 * s.remainder_fraction:.2g} % of the command's RMS"
                  + f"; a generic model of it explains {max(100 * s.generic_gain, 0.0):.1f} %; Ljung-Box p "
                  f"{s.whiteness.get('p_value', float('nan')):.3g}")
     lines.append("Relative effort prediction error ‖F - F̂‖/‖F‖ (F the command in the analysis band):")

@@ -1,6 +1,6 @@
 """The selection's machinery: the candidate fits on the project's executor (the same result in this process and
 on worker processes, one BLAS thread per worker process while this process keeps its own count), and the
-remainder's robust size."""
+remainder's robust size, the periodicity rules (five periods)."""
 
 from __future__ import annotations
 
@@ -13,6 +13,8 @@ import threadpoolctl
 from experiments.synthetic_logs import hidden_effect_log
 from sim.discrepancy import selection
 from sim.discrepancy.analysis import analyse
+from sim.discrepancy.effects.cogging import candidate_periods
+from sim.discrepancy.effects.periodic_disturbance import spectral_lines
 from sim.discrepancy.signals import AnalysisConfig, rms
 from sim.discrepancy.structure import median_block_rms
 from sim.executor import Executor
@@ -74,3 +76,29 @@ def test_a_transient_in_the_held_out_part_does_not_make_the_remainder_large():
     command_rms = rms(np.asarray(log["tau_cmd"])[int(0.6 * len(log)):])
     assert result.structure.rmse["effort"] / command_rms > config.max_remainder
     assert result.structure.remainder_fraction < config.max_remainder
+
+
+def _grid_model(n_fit: int, step_s: float = 0.01):
+    """A stand-in surrogate for the periodicity rules: a grid of ``step_s`` [s] whose fit part holds n_fit samples."""
+    data = SimpleNamespace(dt=1e-3, grid_step=int(round(step_s / 1e-3)), fit=np.ones(n_fit, dtype=bool),
+                           position_resolution=1e-6)
+    return SimpleNamespace(data=data, config=AnalysisConfig(), testbed=False)
+
+
+def test_a_spectral_line_needs_five_periods_in_the_samples_it_is_found_in():
+    """A 2 Hz sine over 1 s of held-out samples (two periods; the 20 s fit part would allow 0.25 Hz): no line
+    below 5 Hz is claimed there; over 3 s (six periods) the 2 Hz line is found."""
+    model = _grid_model(2000)
+    t = np.arange(2000) * 0.01
+    residual = np.sin(2 * np.pi * 2.0 * t)
+    short = np.zeros(2000, dtype=bool)
+    short[:100] = True
+    assert all(f >= 5.0 for f in spectral_lines(model, residual, short, 3))
+    longer = np.zeros(2000, dtype=bool)
+    longer[:300] = True
+    assert spectral_lines(model, residual, longer, 1)[0] == pytest.approx(2.0, abs=0.05)
+
+
+def test_a_cogging_period_fits_five_times_in_the_position_range():
+    periods = candidate_periods(_grid_model(2000), 1.0)
+    assert len(periods) and periods.max() <= 1.0 / 5

@@ -111,17 +111,21 @@ def test_the_command_convention_is_the_same_physics_one_row_apart():
 
 
 def test_a_command_convention_log_gives_no_dead_time_when_stated():
-    """Stated, the command convention gives no finding; analysed as hold-end, the same log shows a dead time of
-    one sample."""
+    """Stated, the command convention gives no finding; stated as hold-end, the same log shows a dead time of one
+    sample; stated nowhere, that one-sample dead time is reported as a wrong time convention, not as a finding."""
     log = _slide_log(12000, 2, COMMAND)
     rig = rig_from_dict({"model": "rigid-joint", "joint": "slide", "mass_kg": 2.0, "effort_gain": 1.0,
                          "peak_effort": 100.0, "friction": {"coulomb": 3.0, "viscous": 8.0}})
     assert analyse(log, rig).found == []
-    unstated = type(log)(log.columns, log.units, {})
-    result = analyse(unstated, rig)
-    assert result.found[:1] == ["transport_delay"]
-    assert result.findings[0].parameters["delay"]["value"] == pytest.approx(1e-3, abs=2e-4)
-    assert "assumed" in result.baseline["time_convention"][0]["from"]
+    hold_end = analyse(type(log)(log.columns, log.units, {"time_convention": HOLD_END}), rig)
+    assert hold_end.found[:1] == ["transport_delay"]
+    assert hold_end.findings[0].parameters["delay"]["value"] == pytest.approx(1e-3, abs=2e-4)
+    assert hold_end.baseline["time_convention_mismatch"] is None
+    unstated = analyse(type(log)(log.columns, log.units, {}), rig)
+    assert "assumed" in unstated.baseline["time_convention"][0]["from"]
+    assert unstated.found == [] and unstated.verdict == "time convention"
+    assert "time_convention = 'command'" in unstated.baseline["time_convention_mismatch"]
+    assert unstated.extended_rig.rigid["delay"] == rig.rigid["delay"]
 
 
 def test_a_validation_log_holds_the_candidates_out_and_reports_both_errors():

@@ -43,6 +43,8 @@ def format_result(result: DiscrepancyResult) -> str:
                  f"{split['guard_s']} s filter guards")
     for entry in b["time_convention"]:
         lines.append(f"  time convention of {entry['log']}: {entry['time_convention']} ({entry['from']})")
+    if b.get("time_convention_mismatch"):
+        lines.append(f"  wrong time convention? {b['time_convention_mismatch']}")
     for key, entry in b["free_parameters"].items():
         line = f"  re-fitted baseline {key}: {entry['value']:.6g} {entry['unit']} (rig {entry['rig']:.6g})"
         if "at_bound" in entry:

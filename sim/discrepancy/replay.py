@@ -9,6 +9,7 @@ log applied next:
   the ticks before (as many as the longest dead time the analysis fits, ``effects.MAX_DELAY_S``) and, on the
   testbed, its current loop where they took it (:meth:`sim.plant.Plant.hold_commands`); a rigid joint:
   position and velocity;
+* a rigid joint with drivetrain compliance: the spring deflected as the measured acceleration loads it;
 * locked fixture: the lever where the load cell's deflection puts it, a loaded hub pressed into the stop its
   torque closes (as far as the stop's soft constraint yields, :func:`stop_compliance_rad_per_nm`), the motor
   behind them; velocities from the rates of the load and of the twist. The load cell resolves the lever's
@@ -36,7 +37,7 @@ from sim.discrepancy.effects.transport_delay import MAX_DELAY_S
 from sim.discrepancy.model import bristle_state, stribeck_level
 from sim.discrepancy.rig import Rig
 from sim.discrepancy.signals import AnalysisConfig, Prepared
-from sim.discrepancy.simulate import InitialState, run_rigid, run_testbed, testbed_plant
+from sim.discrepancy.simulate import InitialState, realisations, run_rigid, run_testbed, testbed_plant
 from sim.run import run_open_loop
 from sim.runlog import RunLog
 
@@ -83,10 +84,13 @@ def measured_state(log: RunLog, rig: Rig, data: Prepared, *, at_rest: bool = Fal
         velocity = data.gradient(data.filt_full(q))
         if at_rest:
             velocity = np.zeros(len(q))
+        deflection, deflection_rate = _compliance_state(rig, data, velocity)
 
         def rigid_state(k: int) -> InitialState:
             def initial(model: Any, d: Any) -> None:
                 d.qpos[0], d.qvel[0] = q[k], velocity[k]
+                if deflection is not None:  # the compliant body, joint 1 (relative to the driven one)
+                    d.qpos[1], d.qvel[1] = deflection[k], deflection_rate[k]
             return initial
         return rigid_state
     assert rig.params is not None
@@ -137,6 +141,20 @@ def measured_state(log: RunLog, rig: Rig, data: Prepared, *, at_rest: bool = Fal
             d.act[model.actuator_actadr[model.actuator("motor").id]] = bristle[k]
         return initial
     return testbed_state
+
+
+def _compliance_state(rig: Rig, data: Prepared, velocity: np.ndarray
+                      ) -> tuple[np.ndarray, np.ndarray] | tuple[None, None]:
+    """A rigid joint with drivetrain compliance: the spring's deflection [rad | m] the measured motion implies,
+    quasi-static (the compliant part φ·m follows the measured acceleration a: deflection -φ·m·a/k), and its rate
+    (zero: a third derivative of the encoder is noise); (None, None) without compliance. Started unloaded, the
+    spring would ring at the resonance through every window that starts while the joint accelerates."""
+    body = next((r.compliant_body for r in realisations(rig) if r.compliant_body is not None), None)
+    if body is None:
+        return None, None
+    fraction, stiffness, _ = body
+    deflection = -fraction * rig.rigid["inertia"] * data.gradient(velocity) / stiffness
+    return deflection, np.zeros(len(deflection))
 
 
 STOP_CALIBRATION_NM = 10.0  # [N·m] held on the locked lever to measure the stop's compliance

@@ -151,12 +151,13 @@ def write_json(path: Path, data: dict[str, Any]) -> None:
     path.write_text(json.dumps(_jsonable(data), indent=2, ensure_ascii=False) + "\n")
 
 
-def write_outputs(args: argparse.Namespace, data: dict[str, Any], plot=None) -> None:
-    """The CLIs' --json and --plot: write ``data`` as JSON, with the run's settings under "run" (``run_settings``),
-    and say where; call ``plot(directory)`` (returning a figure path or a list of them) and print each figure's
-    path. Nothing for an option not given."""
+def write_outputs(args: argparse.Namespace, data: dict[str, Any], plot=None, run: dict[str, Any] | None = None
+                  ) -> None:
+    """The CLIs' --json and --plot: write ``data`` as JSON, with the run's settings under "run" (``run_settings``
+    and the CLI's own ``run`` entries), and say where; call ``plot(directory)`` (returning a figure path or a list
+    of them) and print each figure's path. Nothing for an option not given."""
     if getattr(args, "json", None):
-        write_json(args.json, {**data, "run": run_settings(args)})
+        write_json(args.json, {**data, "run": {**run_settings(args), **(run or {})}})
         print(f"wrote {args.json}")
     if plot is not None and getattr(args, "plot", None):
         if not args.plot.exists():
@@ -293,6 +294,20 @@ def run_settings(args: argparse.Namespace) -> dict[str, Any]:
     if hasattr(args, "duration"):
         settings |= {"duration_s": args.duration, "full_length": args.duration is None}
     return settings
+
+
+def software_versions() -> dict[str, str]:
+    """Versions of what a result was computed with: torquebed, Python, NumPy, SciPy, MuJoCo."""
+    import importlib.metadata
+    import platform
+
+    versions = {"python": platform.python_version()}
+    for name in ("torquebed", "numpy", "scipy", "mujoco"):
+        try:
+            versions[name] = importlib.metadata.version(name)
+        except importlib.metadata.PackageNotFoundError:
+            versions[name] = "not installed"
+    return versions
 
 
 def short_run_banner(args: argparse.Namespace) -> None:

@@ -1,7 +1,7 @@
 """What the simulation gets wrong on a measured log, which effect causes it, and how much the fix predicts.
 
     python -m experiments.discrepancy LOG [LOG ...] --rig RIG.toml [--validate LOG ...] [--json OUT] [--plot DIR]
-                                      [--save-rig OUT.toml] [--workers N] [--no-replay] [--unwrap]
+                                      [--save-rig OUT.toml] [--workers N | --ray ADDRESS] [--no-replay] [--unwrap]
                                       [--max-jitter FRACTION] [--rerun PATH.rrd] [--rerun-spawn]
 
 LOG is a run log (CSV, Parquet or .mat, docs/run_log_format.md); several logs of one rig are fitted together.
@@ -19,6 +19,7 @@ signal (``replay/measured``, ``replay/baseline``, ``replay/extended``, in the re
 
 from __future__ import annotations
 
+import argparse
 import sys
 from pathlib import Path
 
@@ -29,6 +30,7 @@ from experiments.common import (
     cli_parser,
     positive_int,
     record_rerun,
+    software_versions,
     write_outputs,
 )
 from sim.discrepancy.analysis import DiscrepancyResult, analyse
@@ -111,6 +113,9 @@ def main(argv: list[str] | None = None) -> None:
     add_output_args(parser, "write the result as JSON")
     parser.add_argument("--save-rig", type=Path, metavar="TOML", help="write the extended rig (must not exist)")
     parser.add_argument("--workers", type=positive_int, default=2, help="processes for the candidate fits (default 2)")
+    parser.add_argument("--ray", metavar="ADDRESS",
+                        help="fit the candidates on a Ray cluster ('local': start one here; 'auto'; an address) "
+                             "instead of --workers processes (needs the 'ray' extra)")
     parser.add_argument("--no-replay", action="store_true", help="skip the MuJoCo replay of the held-out part")
     add_rerun_args(parser, "the measured log (3D testbed if it has the plant's columns, time series), the "
                            "residuals before and after, and the replay of the held-out part if it ran")
@@ -132,8 +137,9 @@ def main(argv: list[str] | None = None) -> None:
         except OSError as exc:
             parser.error(f"{path} cannot be read: {exc.strerror or exc}")
     n = len(args.log)
+    config = AnalysisConfig(workers=args.workers, ray=args.ray)
     try:
-        result = analyse(logs[0], rig, AnalysisConfig(workers=args.workers), progress=True,
+        result = analyse(logs[0], rig, config, progress=True,
                          replay=not args.no_replay, also=tuple(logs[1:n]), validation=tuple(logs[n:]),
                          names=_names(paths), unwrap=args.unwrap)
     except InputError as exc:
@@ -141,7 +147,8 @@ def main(argv: list[str] | None = None) -> None:
     except (RigError, ValueError) as exc:
         parser.error(str(exc))
     print(format_result(result))
-    write_outputs(args, result.to_dict(), lambda directory: plot_result(result, directory))
+    write_outputs(args, result.to_dict(), lambda directory: plot_result(result, directory),
+                  run=_run_entries(args, paths, logs, config))
     if args.save_rig:
         header = (f"Extended rig written by experiments.discrepancy from {', '.join(p.name for p in paths)} and "
                   f"{args.rig.name}.\n"
@@ -152,6 +159,18 @@ def main(argv: list[str] | None = None) -> None:
     record_rerun(args, lambda: {name: measured_run(logs[0], rig)}, rig.params,
                  lambda: {name: measured_series(logs[0], rig, result)})
     sys.stdout.flush()
+
+
+def _run_entries(args: argparse.Namespace, paths: list[Path], logs: list, config: AnalysisConfig) -> dict:
+    """What was run, for the JSON's "run" section: each log (path, role, samples, duration [s]), the rig file,
+    where the candidates were fitted, whether the replay ran, the seed of the model's own log, the versions."""
+    n = len(args.log)
+    return {"seed": config.model_log_seed, "rig": str(args.rig),
+            "logs": [{"path": str(path), "role": "estimation" if i < n else "validation", "samples": len(log),
+                      "duration_s": float(log["time"][-1] - log["time"][0])}
+                     for i, (path, log) in enumerate(zip(paths, logs, strict=True))],
+            "workers": config.workers, "ray": config.ray, "replay": not args.no_replay,
+            "versions": software_versions()}
 
 
 if __name__ == "__main__":

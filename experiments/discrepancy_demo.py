@@ -31,7 +31,6 @@ from experiments.synthetic_logs import (
     EXPERIMENTS,
     FINE_MOTOR_ENCODER_COUNTS,
     MOTOR_ENCODER_COUNTS,
-    REVEALING_EXPERIMENT,
     baseline_rig,
     hidden_effect_log,
 )
@@ -53,7 +52,7 @@ def shortest_analysable_duration_s() -> float:
 
 def main(argv: list[str] | None = None) -> None:
     parser = cli_parser(__doc__, __spec__.name)
-    parser.add_argument("--effect", choices=sorted(REVEALING_EXPERIMENT), default=DEFAULT_EFFECT,
+    parser.add_argument("--effect", choices=sorted(EFFECTS), default=DEFAULT_EFFECT,
                         help=f"effect to hide (default {DEFAULT_EFFECT})")
     parser.add_argument("--experiment", choices=EXPERIMENTS,
                         help="experiment that produces the log (default: the one that reveals the effect)")
@@ -72,16 +71,16 @@ def main(argv: list[str] | None = None) -> None:
                      f"({samples} samples at 1 kHz: four times its filter guards of {AnalysisConfig().guard_s:g} s "
                      f"at both ends of the fit and held-out parts, and a few filter periods); valid range "
                      f"[{shortest:g}, {MAX_DURATION_S:g}] s")
-    experiment = args.experiment or REVEALING_EXPERIMENT[args.effect]
     spec = EFFECTS[args.effect]
+    experiment = args.experiment or spec.revealing_experiment
     if not spec.applies(baseline_rig(experiment)):
         parser.error(f"--effect {args.effect} does not apply to the rig of the {experiment!r} experiment (it applies "
-                     f"to: {', '.join(sorted(spec.rigs))}); its experiment is {REVEALING_EXPERIMENT[args.effect]!r}")
-    if experiment != REVEALING_EXPERIMENT[args.effect]:
-        print(f"note: {args.effect} is revealed by the {REVEALING_EXPERIMENT[args.effect]!r} experiment; from "
+                     f"to: {', '.join(sorted(spec.rigs))}); its experiment is {spec.revealing_experiment!r}")
+    if experiment != spec.revealing_experiment:
+        print(f"note: {args.effect} is revealed by the {spec.revealing_experiment!r} experiment; from "
               f"{experiment!r} the analysis may not name it or recover its value", file=sys.stderr)
-    # presliding needs an encoder that resolves the presliding displacement (docs/discrepancy.md)
-    encoder = FINE_MOTOR_ENCODER_COUNTS if args.effect == "presliding_friction" else MOTOR_ENCODER_COUNTS
+    # an effect that needs a fine motor encoder (presliding: its displacement, docs/discrepancy.md) gets one
+    encoder = FINE_MOTOR_ENCODER_COUNTS if spec.needs_fine_motor_encoder else MOTOR_ENCODER_COUNTS
     log_path, rig_path = args.out / "demo_log.csv", args.out / "demo_rig.toml"
     for path in (log_path, rig_path):
         if path.exists():

@@ -31,7 +31,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from controllers.pi import PITorqueController
-from sim.discrepancy.effects import rig_kind, spec
+from sim.discrepancy.effects import EFFECTS, rig_kind, spec
 from sim.discrepancy.rig import AddedEffect, Rig, rig_from_dict
 from sim.discrepancy.signals import quantise
 from sim.discrepancy.simulate import run_rigid, run_testbed, sensor_reading
@@ -71,16 +71,9 @@ RIGID_EXPERIMENTS = ("slide", "hinge", "slide_moves", "hinge_moves")
 TESTBED_EXPERIMENTS = tuple(e for e in EXPERIMENTS if e not in RIGID_EXPERIMENTS)
 MOVES = {"hinge": 0.5, "slide": 0.05}  # point-to-point moves between ± this [rad | m] ...
 MOVE_S, DWELL_S = 2.0, 0.5  # ... each taking MOVE_S with a raised-cosine velocity, then a dwell of DWELL_S [s]
-# The experiment whose log reveals each effect (docs/discrepancy.md, "Effects and the experiments that reveal
-# them"; the hidden-effect sweep recovers each from it). Presliding also needs a fine motor encoder.
-REVEALING_EXPERIMENT = {
-    "coulomb_friction": "free", "viscous_friction": "free", "stribeck_friction": "free",
-    "asymmetric_friction": "free", "load_dependent_friction": "locked", "presliding_friction": "locked_pi_current",
-    "backlash": "locked", "cogging": "free", "torque_constant_nonlinearity": "locked", "transport_delay": "free",
-    "gravity": "free", "sensor_offset": "locked", "sensor_gain": "locked", "sensor_thermal_drift": "locked",
-    "sensor_hysteresis": "locked", "effort_gain": "locked", "quadratic_drag": "free", "position_spring": "free",
-    "periodic_disturbance": "free", "drivetrain_compliance": "hinge", "inertia": "hinge",
-}
+# The experiment whose log reveals each effect, as the effect declares it (``Effect.revealing_experiment``;
+# the hidden-effect sweep recovers each from it).
+REVEALING_EXPERIMENT = {name: effect.revealing_experiment for name, effect in EFFECTS.items()}
 
 # peak efforts ~1.3 x the swings' largest command, so that the roll-off shows (commands reach ~75 % of the peak)
 BASELINE_SLIDE_RIG = {"model": "rigid-joint", "joint": "slide", "mass_kg": 2.0, "effort_gain": 1.0,

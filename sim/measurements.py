@@ -8,6 +8,8 @@ Each reads the plant at the end of a tick. The optical joint torque sensor is
 * :class:`MotorEncoder` ``q_motor`` [rad] and :class:`MotorVelocity` ``qd_motor`` [rad/s], output side.
 * :class:`LeverAngle` ``q`` [rad] and :class:`LeverVelocity` ``qd`` [rad/s].
 * :class:`BoardThermometer` ``temperature`` [°C]: the TMP117 reading.
+* :class:`FlexureTorque` ``tau_flexure`` [N·m] and :class:`LoadCellForce` ``force_loadcell`` [N]: the true,
+  noiseless values (what a simulated log holds before its sensors' effects and noise are added).
 * :class:`LoadCell` ``tau_loadcell`` [N·m]: force x lever length with the load cell's white reading noise.
 """
 
@@ -89,6 +91,24 @@ class BoardThermometer(_PlantSignal):
 
     def read(self, plant: Plant) -> float:
         return plant.tmp117_temperature_c
+
+
+class FlexureTorque(_PlantSignal):
+    """The true torque the flexure transmits [N·m]."""
+
+    name, unit = "tau_flexure", "N·m"
+
+    def read(self, plant: Plant) -> float:
+        return plant.flexure_torque_nm
+
+
+class LoadCellForce(_PlantSignal):
+    """The true load-cell force at the lever tip [N] (0 on the free fixture)."""
+
+    name, unit = "force_loadcell", "N"
+
+    def read(self, plant: Plant) -> float:
+        return plant.loadcell_force_n
 
 
 class LoadCell:

@@ -6,7 +6,8 @@ A control tick k (``simulation.control_period_s``, 1 ms) is, in this order:
    observation (a dict: measurement name -> value, plus ``time_s``, the tick's start [s], and ``tau_ref``,
    the tick's torque reference [N·m], when the run has one);
 2. **control**: the :class:`Controller` maps the observation to a motor torque command [N·m, output side];
-3. **advance**: external torques are applied (on the lever, and on the output flange), the plant steps one
+3. **advance**: external torques are applied (on the lever, on the output flange, and on the motor joint), the
+   plant steps one
    tick with the command (the driver's current limit and current-to-torque map are the plant's);
 4. **record**: the plant's signals at the end of tick k (``sim.plant.SIGNAL_UNITS``), the inputs, the
    observation, what the controller reports (:attr:`Controller.log_units`) and the recorded-only
@@ -116,6 +117,13 @@ class Progress:
               f"{self.total * self.tick_s:.1f} s simulated, {rate:,.0f} ticks/s)", file=self.stream)
 
 
+def apply_motor_torque(plant: Plant, tau_nm: float) -> None:
+    """Apply a torque [N·m, output-referred] on the motor joint (the rotor and gear, before the backlash): a load
+    the plant's model lacks (e.g. a spring or a disturbance on the rotor). Written to MuJoCo's ``qfrc_applied``
+    of the joint named 'motor', which ``Plant.reset`` clears."""
+    plant.data.joint("motor").qfrc_applied[0] = tau_nm
+
+
 def apply_hub_torque(plant: Plant, tau_nm: float) -> None:
     """Apply an external torque [N·m] about the joint axis on the gear's output flange + sensor hub, i.e.
     between the gear and the flexure (the sensor and the load cell both see it, the current estimate does
@@ -157,15 +165,18 @@ class ControlLoop:
             obs[m.name] = m.read(self.plant)
         return obs
 
-    def advance(self, command_nm: float, tau_ext_nm: float = 0.0, tau_hub_nm: float | None = None) -> None:
+    def advance(self, command_nm: float, tau_ext_nm: float = 0.0, tau_hub_nm: float | None = None,
+                tau_motor_nm: float | None = None) -> None:
         """Step the plant one tick with a command [N·m], a lever torque [N·m] and, if given, a hub torque
-        [N·m] (:func:`apply_hub_torque`)."""
+        [N·m] (:func:`apply_hub_torque`) and a motor-joint torque [N·m] (:func:`apply_motor_torque`)."""
         if tau_hub_nm is not None:
             apply_hub_torque(self.plant, tau_hub_nm)
+        if tau_motor_nm is not None:
+            apply_motor_torque(self.plant, tau_motor_nm)
         self.plant.step(command_nm, tau_ext_nm)
 
 
-ExternalTorque = Callable[[int, Plant], float]  # (tick, plant at the end of the previous tick) -> N·m on the lever
+ExternalTorque = Callable[[int, Plant], float]  # (tick, plant at the end of the previous tick) -> N·m
 
 
 def _profile(name: str, values, n: int) -> np.ndarray | None:
@@ -179,8 +190,9 @@ def _profile(name: str, values, n: int) -> np.ndarray | None:
 
 def run_loop(plant: Plant, controller: Controller, n_ticks: int, *, measurements: Sequence[Measurement] = (),
              recorded: Sequence[Measurement] = (), tau_ref_nm=None, tau_ext_nm=None, tau_hub_nm=None,
-             external: ExternalTorque | None = None, stop: Callable[[int, Plant], bool] | None = None,
-             progress_label: str | None = None, meta: dict | None = None) -> RunLog:
+             external: ExternalTorque | None = None, motor_load: ExternalTorque | None = None,
+             stop: Callable[[int, Plant], bool] | None = None, progress_label: str | None = None,
+             meta: dict | None = None) -> RunLog:
     """Run ``n_ticks`` control ticks of ``controller`` on ``plant`` and record them.
 
     Parameters
@@ -204,6 +216,9 @@ def run_loop(plant: Plant, controller: Controller, n_ticks: int, *, measurements
     external : callable, optional
         ``external(k, plant) -> N·m``: a lever torque computed from the plant's state (e.g. a hand), added to
         ``tau_ext_nm``.
+    motor_load : callable, optional
+        ``motor_load(k, plant) -> N·m``: a torque on the motor joint [output-referred] computed from the plant's
+        state at the end of tick k-1, held through tick k (:func:`apply_motor_torque`; not recorded).
     stop : callable, optional
         ``stop(k, plant) -> bool``, asked after tick k is recorded: True ends the run there (the log holds
         ticks 0 ... k).
@@ -259,7 +274,8 @@ def run_loop(plant: Plant, controller: Controller, n_ticks: int, *, measurements
         if logged_units:
             logged[k] = controller.log_values()
         lever[k] = ext_list[k] + (external(k, plant) if external is not None else 0.0)
-        loop.advance(command, lever[k], hub_list[k] if hub_list is not None else None)
+        loop.advance(command, lever[k], hub_list[k] if hub_list is not None else None,
+                     motor_load(k, plant) if motor_load is not None else None)
         times[k] = plant.time_s
         plant.read_signals(out[k])
         for i, m in enumerate(recorded):

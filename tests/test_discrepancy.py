@@ -354,6 +354,11 @@ def test_cli_reports_json_and_an_extended_rig_that_the_simulator_runs(tmp_path, 
     assert set(data["findings"][0]) == {"effect", "kind", "parameters", "rmse_heldout_before", "rmse_heldout_after",
                                         "gain", "evidence"}
     assert data["findings"][0]["parameters"]["sensor_offset"]["unit"] == "N·m"
+    run = data["run"]  # what was run: the log, its length, the seed of the model's own log, the software
+    assert run["logs"] == [{"path": str(log_path), "role": "estimation", "samples": len(log),
+                            "duration_s": pytest.approx(float(log["time"][-1] - log["time"][0]))}]
+    assert run["rig"] == str(rig_path) and run["seed"] == 0 and run["workers"] == 1 and run["replay"]
+    assert set(run["versions"]) == {"torquebed", "python", "numpy", "scipy", "mujoco"}
     assert {p: hashlib.sha256(p.read_bytes()).hexdigest() for p in (log_path, rig_path)} == digest
     extended = load_rig(out_rig)
     offset = {e.name: e.parameters for e in extended.effects}["sensor_offset"]["sensor_offset"]

@@ -689,11 +689,14 @@ def test_mujoco_hinge_gravity_settles_at_q0_plus_asin_u_over_a(carried_by):
     assert settle_hinge(rig, u, q0)[-1] == pytest.approx(q0 + math.asin(u / a), abs=1e-7)
 
 
-def test_mujoco_slide_gravity_accelerates_at_u_minus_a_over_m():
-    """A slide needs the constant A: q̇ = ((u - A)/m)·t."""
+@pytest.mark.parametrize("carried_by", ["effect", "rig"])
+def test_mujoco_slide_gravity_accelerates_at_u_minus_a_over_m(carried_by):
+    """A slide needs the constant A: q̇ = ((u - A)/m)·t, whether an added effect or the rig's own field carries it
+    (as on the hinge)."""
     a, u = -2.0, 3.0
-    t, v = final_velocity(rigid_rig("slide", M_SLIDE, effects=(effect("gravity", gravity_amplitude=a,
-                                                                      gravity_angle=0.0),)), u)
+    rig = (rigid_rig("slide", M_SLIDE, effects=(effect("gravity", gravity_amplitude=a, gravity_angle=0.0),))
+           if carried_by == "effect" else rigid_rig("slide", M_SLIDE, gravity_amplitude=a))
+    t, v = final_velocity(rig, u)
     assert v == pytest.approx((u - a) / M_SLIDE * t, rel=EXACT)
 
 
@@ -955,3 +958,26 @@ def test_every_effect_has_a_closed_form_test():
         assert tests, name
         for test in tests:
             assert callable(globals().get(test)), f"{name}: {test} is not a test of this file"
+
+
+def test_every_effect_declares_an_experiment_of_its_rig_that_reveals_it():
+    """``revealing_experiment`` names an experiment of the synthetic logs whose rig the effect applies to; only
+    presliding (a displacement below the 16-bit motor encoder's step) needs the fine motor encoder."""
+    from experiments.synthetic_logs import EXPERIMENTS, baseline_rig
+
+    for name, effect in EFFECTS.items():
+        assert effect.revealing_experiment in EXPERIMENTS, name
+        assert effect.applies(baseline_rig(effect.revealing_experiment)), name
+    assert [n for n, e in EFFECTS.items() if e.needs_fine_motor_encoder] == ["presliding_friction"]
+
+
+def test_the_report_says_which_experiment_reveals_what_a_log_cannot():
+    from experiments.synthetic_logs import hidden_effect_log
+    from sim.discrepancy.analysis import analyse
+    from sim.discrepancy.report import format_result
+
+    log, rig, _ = hidden_effect_log("locked", [], 5, 4.0)
+    result = analyse(log, rig, AnalysisConfig())
+    text = format_result(result)
+    assert "presliding_friction" in result.baseline["not_identifiable"]
+    assert "(the 'locked_pi_current' experiment reveals it, with a fine motor encoder)" in text

@@ -13,10 +13,10 @@ import pytest
 
 from experiments import discrepancy as cli
 from experiments.synthetic_logs import hidden_effect_log, synth_log
-from sim.discrepancy.analysis import analyse
+from sim.discrepancy.analysis import Source, analyse, join
 from sim.discrepancy.checks import InputError, check_log, to_hold_end, wrapped_steps
 from sim.discrepancy.rig import RigError, rig_from_dict
-from sim.discrepancy.signals import MAX_ANALYSIS_SAMPLES, AnalysisConfig, decimation_factor
+from sim.discrepancy.signals import MAX_ANALYSIS_SAMPLES, AnalysisConfig, decimation_factor, prepare
 from sim.logio import write_log
 from sim.runlog import COMMAND, HOLD_END
 from tests.independent import rigsim
@@ -111,17 +111,21 @@ def test_the_command_convention_is_the_same_physics_one_row_apart():
 
 
 def test_a_command_convention_log_gives_no_dead_time_when_stated():
-    """Stated, the command convention gives no finding; analysed as hold-end, the same log shows a dead time of
-    one sample."""
+    """Stated, the command convention gives no finding; stated as hold-end, the same log shows a dead time of one
+    sample; stated nowhere, that one-sample dead time is reported as a wrong time convention, not as a finding."""
     log = _slide_log(12000, 2, COMMAND)
     rig = rig_from_dict({"model": "rigid-joint", "joint": "slide", "mass_kg": 2.0, "effort_gain": 1.0,
                          "peak_effort": 100.0, "friction": {"coulomb": 3.0, "viscous": 8.0}})
     assert analyse(log, rig).found == []
-    unstated = type(log)(log.columns, log.units, {})
-    result = analyse(unstated, rig)
-    assert result.found[:1] == ["transport_delay"]
-    assert result.findings[0].parameters["delay"]["value"] == pytest.approx(1e-3, abs=2e-4)
-    assert "assumed" in result.baseline["time_convention"][0]["from"]
+    hold_end = analyse(type(log)(log.columns, log.units, {"time_convention": HOLD_END}), rig)
+    assert hold_end.found[:1] == ["transport_delay"]
+    assert hold_end.findings[0].parameters["delay"]["value"] == pytest.approx(1e-3, abs=2e-4)
+    assert hold_end.baseline["time_convention_mismatch"] is None
+    unstated = analyse(type(log)(log.columns, log.units, {}), rig)
+    assert "assumed" in unstated.baseline["time_convention"][0]["from"]
+    assert unstated.found == [] and unstated.verdict == "time convention"
+    assert "time_convention = 'command'" in unstated.baseline["time_convention_mismatch"]
+    assert unstated.extended_rig.rigid["delay"] == rig.rigid["delay"]
 
 
 def test_a_validation_log_holds_the_candidates_out_and_reports_both_errors():
@@ -169,3 +173,25 @@ def test_a_long_rigid_log_is_decimated_but_a_testbed_log_is_not():
     assert decimation_factor(MAX_ANALYSIS_SAMPLES, 1e-3, config, rigid) == 1
     assert decimation_factor(10 * MAX_ANALYSIS_SAMPLES, 1e-3, config, rigid) == 4  # 250 Hz: 10 x the 25 Hz band
     assert decimation_factor(10 * MAX_ANALYSIS_SAMPLES, 1e-3, config, testbed) == 1
+
+
+def test_joined_logs_are_filtered_and_differentiated_each_on_its_own():
+    """Two runs joined, the second the first with its angles 0.5 rad further on: every filtered and differentiated
+    signal of the second is the first's (the angles shifted), up to rounding. Filtered across the joint, the
+    0.5 rad step would leak into both runs' velocities and accelerations."""
+    log, rig, _ = hidden_effect_log("free", [], 4, 1.8)
+    n = len(log)
+    shifted = {name: (values + 0.5 if name in ("q", "q_motor") else values) for name, values in log.columns.items()}
+    second = type(log)(shifted, dict(log.units), dict(log.meta))
+    joined, segments = join([Source("first", "estimation", log), Source("second", "estimation", second)])
+    config = AnalysisConfig()
+    data = prepare(joined, rig, config, segments=segments)
+    alone = prepare(log, rig, config)
+    # rounding: the 0.5 rad offset's last bit (1e-16 rad) through two differences at 1 ms, ~1e-8 rad/s²
+    for name, atol in (("velocity_full", 1e-9), ("acceleration_full", 1e-6)):
+        np.testing.assert_allclose(getattr(data, name)[n:], getattr(alone, name), rtol=0, atol=atol, err_msg=name)
+        np.testing.assert_allclose(getattr(data, name)[:n], getattr(alone, name), rtol=0, atol=atol, err_msg=name)
+    np.testing.assert_allclose(data.filt_full(joined["q"])[n:] - 0.5, alone.filt_full(log["q"]), rtol=0, atol=1e-9)
+    assert data.grid_step == alone.grid_step and n % data.grid_step == 0
+    lever = data.lever_acceleration.reshape(2, -1)
+    np.testing.assert_allclose(lever, np.broadcast_to(alone.lever_acceleration, lever.shape), rtol=0, atol=1e-6)

@@ -4,6 +4,7 @@ The oracle for the model's log is the simulator itself: a log the baseline produ
 own command from its own initial state, retraces the same motion.
 """
 
+import mujoco
 import numpy as np
 import pytest
 
@@ -108,3 +109,28 @@ def test_the_replay_of_the_models_own_log_follows_it(experiment):
     assert len(starts) == replay["windows"]
     first_ms = np.concatenate([error[s:s + 5] for s in starts])
     assert first_ms.max() < 5 * REPLAY_OWN_LOG_BOUND[experiment]  # no start transient
+
+
+def test_a_compliant_rigid_joint_replay_starts_with_the_spring_the_measured_acceleration_loads(monkeypatch):
+    """The hinge with drivetrain compliance, replayed through the rig that made its log: each window starts with
+    the spring deflected by -φ·m·a/k (a the measured acceleration), which retraces the log closer than a window
+    started with the spring unloaded."""
+    from sim.discrepancy import replay as replay_module
+    from sim.discrepancy.simulate import realisations, rigid_xml
+
+    log, _, truth = hidden_effect_log("hinge", ["drivetrain_compliance"], 1, 8.0)
+    config = AnalysisConfig()
+    data = prepare(log, truth.rig, config)
+    fraction, stiffness, _ = next(r.compliant_body for r in realisations(truth.rig) if r.compliant_body)
+    acceleration = data.gradient(data.gradient(data.filt_full(np.asarray(log["q"], dtype=float))))
+    model = mujoco.MjModel.from_xml_string(rigid_xml(truth.rig))
+    state = mujoco.MjData(model)
+    k = 5000
+    replay_module.measured_state(log, truth.rig, data)(k)(model, state)
+    assert state.qpos[1] == pytest.approx(-fraction * truth.rig.rigid["inertia"] * acceleration[k] / stiffness,
+                                          rel=1e-9)
+    assert state.qpos[1] != 0.0
+    loaded = replay_module.replay_held_out(log, truth.rig, truth.rig, data, config)["rmse_baseline"]
+    monkeypatch.setattr(replay_module, "_compliance_state", lambda rig, data, velocity: (None, None))
+    unloaded = replay_module.replay_held_out(log, truth.rig, truth.rig, data, config)["rmse_baseline"]
+    assert loaded < 0.8 * unloaded

@@ -26,7 +26,14 @@ from typing import Any
 
 import numpy as np
 
-from sim.discrepancy.checks import InputError, check_effort_balance, check_log, time_convention, to_hold_end
+from sim.discrepancy.checks import (
+    ASSUMED_CONVENTION,
+    InputError,
+    check_effort_balance,
+    check_log,
+    time_convention,
+    to_hold_end,
+)
 from sim.discrepancy.effects import EFFECTS, rig_kind
 from sim.discrepancy.fit import fit_keys
 from sim.discrepancy.model import NUISANCE_KEYS, Surrogate, channel_unit
@@ -39,7 +46,7 @@ from sim.discrepancy.selection import (
     carried_by_model,
     effort_change,
     held_out_score,
-    make_pool,
+    make_executor,
     run_round,
 )
 from sim.discrepancy.signals import (
@@ -54,7 +61,7 @@ from sim.discrepancy.signals import (
     smallest_step,
 )
 from sim.discrepancy.structure import Structure, residual_structure
-from sim.runlog import RunLog
+from sim.runlog import HOLD_END, RunLog
 
 CHANNEL_MEANING = {
     "effort": "effort-prediction residual: commanded effort minus the effort the model needs for the measured "
@@ -62,6 +69,7 @@ CHANNEL_MEANING = {
     "sensor": "torque sensor minus the transmitted torque the model predicts it reads",
     "kinematic": "motor angle minus lever angle minus flexure twist, against the backlash model",
 }
+CONVENTION_TOLERANCE = 0.25  # a dead time within a quarter hold of one hold beyond the rig's: a time convention
 STAND_IN_GAIN = 1.0 / 3.0  # beside an unexplained remainder, a finding explaining less is a stand-in
 LISTED_REJECTED_GAIN = 0.10  # refused candidates with at least this held-out gain are listed with their rule
 WIDEN = 10.0  # a free parameter that ends at a bound is re-fitted with bounds this many times as wide
@@ -104,7 +112,9 @@ class DiscrepancyResult:
     tentative : list of Finding
         Accepted effects that explain less than the unexplained remainder would: partial stand-ins.
     verdict : str
-        'found', 'unexplained', 'found, and an unexplained remainder' or 'no significant discrepancy'.
+        'found', 'unexplained', 'found, and an unexplained remainder', 'time convention' (the only discrepancy is
+        logs stamped in another time convention than the one assumed, see ``baseline['time_convention_mismatch']``)
+        or 'no significant discrepancy'.
     structure : Structure
         What the final residual still holds (the unexplained remainder and its signature).
     rejected : list of dict
@@ -191,8 +201,9 @@ def join_and_prepare(sources: list[Source], rig: Rig, config: AnalysisConfig
     if factor == 1:
         return joined, segments, 1, prepare(joined, rig, config, segments=segments or None)
     resolution = smallest_step(joined["q"])
+    bounds = tuple((a, b) for a, b, _ in segments)
     segments = [(-(-a // factor), -(-b // factor), f) for a, b, f in segments]
-    data = prepare(decimate(joined, factor), rig, config, segments=segments or None, hold_s=dt,
+    data = prepare(decimate(joined, factor, bounds), rig, config, segments=segments or None, hold_s=dt,
                    resolution=resolution)
     return joined, segments, factor, data
 
@@ -317,43 +328,41 @@ def analyse(log: RunLog, rig: Rig, config: AnalysisConfig | None = None, *, prog
     rounds: list[list[Candidate]] = []
     notes: list[str] = []
     dropped: list[dict[str, str]] = []
-    pool = make_pool(model)
+    executor = make_executor(config)
     current, current_score = theta, before
-    try:
-        while candidates and len(findings) < config.max_effects:
-            label = f"round {len(rounds) + 1}, "
-            _progress(f"round {len(rounds) + 1}: {len(candidates)} candidate effects, each fitted with "
-                      f"{len(accepted)} accepted parameter(s)", progress)
-            scores = run_round(model, candidates, current, accepted, scales, current_score, pool, progress, label)
-            t_null = time.perf_counter()
-            best, note = _first_passing(scores, sources, rig, config, model, current, findings, accepted, scales)
-            timings["model_log_s"] = timings.get("model_log_s", 0.0) + time.perf_counter() - t_null
-            rounds.append(scores)
-            if note:
-                notes.append(note)
-            if best is None:
-                break
-            channel = best.best_channel
-            findings.append(Finding(
-                effect=best.effect, kind=_kind(best.effect, theta0),
-                parameters={}, rmse_heldout_before=current_score.rmse[channel],
-                rmse_heldout_after=best.score.rmse[channel], gain=best.gains[channel],
-                evidence=_evidence(best, model, current, channel)))
-            _progress(f"found {best.effect} (held-out {channel} RMSE -{100 * best.gains[channel]:.1f} %, "
-                      f"ΔBIC {best.delta_bic:.1f})", progress)
-            accepted = tuple(dict.fromkeys(EFFECTS[best.effect].keys + accepted))
-            current, current_score = best.fit.theta, best.score
-            candidates = [c for c in candidates if c != best.effect]
-            while (pruned := _prune(model, findings, current, current_score, accepted, scales)) is not None:
-                finding, current, current_score, accepted, reason = pruned
-                findings.remove(finding)
-                dropped.append({"effect": finding.effect, "reason": reason})
-                _progress(f"dropped {finding.effect}: {reason}", progress)
-    finally:
-        if pool is not None:
-            pool.shutdown()
+    while candidates and len(findings) < config.max_effects:
+        label = f"round {len(rounds) + 1}, "
+        _progress(f"round {len(rounds) + 1}: {len(candidates)} candidate effects, each fitted with "
+                  f"{len(accepted)} accepted parameter(s)", progress)
+        scores = run_round(model, candidates, current, accepted, scales, current_score, executor, progress,
+                           label)
+        t_null = time.perf_counter()
+        best, note = _first_passing(scores, sources, rig, config, model, current, findings, accepted, scales)
+        timings["model_log_s"] = timings.get("model_log_s", 0.0) + time.perf_counter() - t_null
+        rounds.append(scores)
+        if note:
+            notes.append(note)
+        if best is None:
+            break
+        channel = best.best_channel
+        findings.append(Finding(
+            effect=best.effect, kind=_kind(best.effect, theta0),
+            parameters={}, rmse_heldout_before=current_score.rmse[channel],
+            rmse_heldout_after=best.score.rmse[channel], gain=best.gains[channel],
+            evidence=_evidence(best, model, current, channel)))
+        _progress(f"found {best.effect} (held-out {channel} RMSE -{100 * best.gains[channel]:.1f} %, "
+                  f"ΔBIC {best.delta_bic:.1f})", progress)
+        accepted = tuple(dict.fromkeys(EFFECTS[best.effect].keys + accepted))
+        current, current_score = best.fit.theta, best.score
+        candidates = [c for c in candidates if c != best.effect]
+        while (pruned := _prune(model, findings, current, current_score, accepted, scales)) is not None:
+            finding, current, current_score, accepted, reason = pruned
+            findings.remove(finding)
+            dropped.append({"effect": finding.effect, "reason": reason})
+            _progress(f"dropped {finding.effect}: {reason}", progress)
     timings["selection_s"] = time.perf_counter() - t
     findings = [replace(f, parameters=_parameters(f.effect, theta0, current, model)) for f in findings]
+    findings, convention_mismatch = _convention_mismatch(findings, conventions, theta0, current, data.hold_s)
 
     # 5. the remainder, the logs' errors, the extended rig, the replay
     t = time.perf_counter()
@@ -374,12 +383,15 @@ def analyse(log: RunLog, rig: Rig, config: AnalysisConfig | None = None, *, prog
     timings["total_s"] = time.perf_counter() - t0
     if findings:
         verdict = "found, and an unexplained remainder" if structure.unexplained else "found"
+    elif convention_mismatch and not structure.unexplained:
+        verdict = "time convention"
     else:
         verdict = "unexplained" if structure.unexplained else "no significant discrepancy"
     units = {c: channel_unit(c, rig.joint) for c in model.channels}
     baseline = {
         "rig": rig.to_dict(),
         "time_convention": conventions,
+        "time_convention_mismatch": convention_mismatch,
         "split": _split(data, sources, segments, config),
         "decimation": ({"factor": factor, "rate_hz": 1.0 / data.dt,
                         "why": f"the log is longer than {MAX_ANALYSIS_SAMPLES} samples: analysed at the lower rate, "
@@ -412,6 +424,26 @@ def analyse(log: RunLog, rig: Rig, config: AnalysisConfig | None = None, *, prog
         signal={c: CHANNEL_MEANING[c] for c in model.channels}, units=units, extended_rig=extended,
         theta_baseline=theta, theta_final=current, residuals_baseline=residuals_baseline,
         residuals_final=residuals_final, time=data.t, held=data.held, fit=data.fit, replay=replay_result)
+
+
+def _convention_mismatch(findings: list[Finding], conventions: list[dict[str, str]], theta0: dict[str, float],
+                         theta: dict[str, float], hold_s: float) -> tuple[list[Finding], str | None]:
+    """(the findings, None), or, if the logs' time convention is stated nowhere and the dead time found exceeds
+    the rig's by one command hold (within CONVENTION_TOLERANCE of it), (the findings without it, what it is):
+    logs stamped in the 'command' convention read as 'hold_end' act exactly one hold late
+    (:func:`sim.discrepancy.checks.to_hold_end`), a wrong convention, not a dead time of the rig."""
+    delay = next((f for f in findings if f.effect == "transport_delay"), None)
+    if delay is None or not conventions or any(c["from"] != ASSUMED_CONVENTION for c in conventions):
+        return findings, None
+    extra = theta["delay"] - theta0["delay"]
+    if abs(extra - hold_s) > CONVENTION_TOLERANCE * hold_s:
+        return findings, None
+    return [f for f in findings if f is not delay], (
+        f"the logs act one sample ({1e3 * hold_s:.3g} ms) late: a dead time of {1e3 * extra:.3g} ms beyond the rig's "
+        f"is what logs stamped in the 'command' time convention (each row's state measured when its command was "
+        f"computed) give when read as '{HOLD_END}', and no rig or log states the convention. State "
+        f"time_convention = 'command' in the rig; if the rows are stamped at the end of each hold, state "
+        f"'{HOLD_END}' and the dead time is reported as a finding")
 
 
 def _announce(model: Surrogate, progress: bool) -> None:

@@ -32,6 +32,7 @@ WRAP_STEP_RATIO = 50.0  # ... and 50 x the median nonzero step is a wrap
 LOCKED_MOTION_RAD = 0.05  # a locked lever turns by less than 0.05 rad (3°: the load cell's full deflection is ~0.1°)
 MAX_EFFORT_RATIO = 3.0  # the baseline's effort error may not exceed 3 x the command (RMS)
 POSITION_COLUMNS = ("q", "q_motor")
+ASSUMED_CONVENTION = "assumed (neither the rig nor the log states it)"  # where the time convention comes from
 
 
 class InputError(ValueError):
@@ -65,7 +66,7 @@ def time_convention(log: RunLog, rig: Rig) -> tuple[str, str]:
         return rig.time_convention, f"rig {rig.source}"
     if stated is not None:
         return stated, "the log's metadata"
-    return HOLD_END, "assumed (neither the rig nor the log states it)"
+    return HOLD_END, ASSUMED_CONVENTION
 
 
 def to_hold_end(log: RunLog, convention: str) -> RunLog:

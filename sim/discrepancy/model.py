@@ -49,7 +49,7 @@ from scipy.signal import butter, sosfiltfilt
 from models.gim8108_testbed.derived import derive
 from sim.discrepancy.effects import EFFECTS, TESTBED, Effect, Scale, rig_kind
 from sim.discrepancy.rig import Rig
-from sim.discrepancy.signals import FILTER_ORDER, AnalysisConfig, Prepared, derivative, rms, testbed_constants
+from sim.discrepancy.signals import FILTER_ORDER, AnalysisConfig, Prepared, rms, testbed_constants
 from sim.motor_torque import CurrentToTorqueMap
 
 CHANNEL_UNITS = {"effort": ("N·m", "N"), "sensor": ("N·m", "N·m"), "kinematic": ("rad", "m")}
@@ -223,7 +223,7 @@ class Surrogate:
         if cutoff >= 0.45 / d.dt:
             return d.velocity_full
         sos = butter(FILTER_ORDER, cutoff, fs=1.0 / d.dt, output="sos")
-        return derivative(sosfiltfilt(sos, d.position_full), d.dt)
+        return d.derivative(d.per_log(lambda part: sosfiltfilt(sos, part), d.position_full))
 
     def _near(self, edges: np.ndarray) -> np.ndarray:
         """Grid samples within RIGID_TRANSITION_GUARD_PERIODS filter periods of any time in ``edges`` [s]."""
@@ -306,7 +306,7 @@ class Surrogate:
                 # the bristle rate at the sample time: MuJoCo's dcmotor applies σ1·(z_{n+1} - z_n)/h at every
                 # physics step, so its mean over a control tick is σ1·(z_k - z_{k-1})/dt, centred half a sample
                 # before t_k; the balance compares every other term at t_k, so the rate is the centred difference
-                return d.filt(sigma0 * z + sigma1 * np.gradient(z, d.dt))
+                return d.filt(sigma0 * z + sigma1 * d.gradient(z))
 
             return self.memo("friction", (fc, fs, vs, theta["presliding_stiffness"]), compute)
 

@@ -9,6 +9,7 @@ log applied next:
   the ticks before (as many as the longest dead time the analysis fits, ``effects.MAX_DELAY_S``) and, on the
   testbed, its current loop where they took it (:meth:`sim.plant.Plant.hold_commands`); a rigid joint:
   position and velocity;
+* a rigid joint with drivetrain compliance: the spring deflected as the measured acceleration loads it;
 * locked fixture: the lever where the load cell's deflection puts it, a loaded hub pressed into the stop its
   torque closes (as far as the stop's soft constraint yields, :func:`stop_compliance_rad_per_nm`), the motor
   behind them; velocities from the rates of the load and of the twist. The load cell resolves the lever's
@@ -36,7 +37,8 @@ from sim.discrepancy.effects.transport_delay import MAX_DELAY_S
 from sim.discrepancy.model import bristle_state, stribeck_level
 from sim.discrepancy.rig import Rig
 from sim.discrepancy.signals import AnalysisConfig, Prepared
-from sim.discrepancy.simulate import InitialState, run_rigid, run_testbed, testbed_plant
+from sim.discrepancy.simulate import InitialState, realisations, run_rigid, run_testbed, testbed_plant
+from sim.run import run_open_loop
 from sim.runlog import RunLog
 
 
@@ -79,13 +81,16 @@ def measured_state(log: RunLog, rig: Rig, data: Prepared, *, at_rest: bool = Fal
     """
     if rig.model != "testbed":
         q = np.asarray(log["q"], dtype=float)
-        velocity = np.gradient(data.filt_full(q), data.dt)
+        velocity = data.gradient(data.filt_full(q))
         if at_rest:
             velocity = np.zeros(len(q))
+        deflection, deflection_rate = _compliance_state(rig, data, velocity)
 
         def rigid_state(k: int) -> InitialState:
             def initial(model: Any, d: Any) -> None:
                 d.qpos[0], d.qvel[0] = q[k], velocity[k]
+                if deflection is not None:  # the compliant body, joint 1 (relative to the driven one)
+                    d.qpos[1], d.qvel[1] = deflection[k], deflection_rate[k]
             return initial
         return rigid_state
     assert rig.params is not None
@@ -96,14 +101,14 @@ def measured_state(log: RunLog, rig: Rig, data: Prepared, *, at_rest: bool = Fal
     half_gap = 0.5 * rig.params.backlash.width_rad
     bristle = measured_bristle_rad(rig, data) * rig.params.motor.gear_ratio  # motor side: MuJoCo's dcmotor state
     q_motor, q_lever = _motor_angle(log, data), _lever_angle(log, data)
-    velocity = np.gradient(q_motor, data.dt)
+    velocity = data.gradient(q_motor)
     if "force_loadcell" in log.columns:
         tau = data.filt_full(np.asarray(log["force_loadcell"], dtype=float) * rig.params.lever.length_m)
     elif "tau_sensor" in log.columns:
         tau = data.filt_full(np.asarray(log["tau_sensor"], dtype=float))
     else:
         tau = np.zeros(len(q_motor))
-    flex_rate = -np.gradient(tau, data.dt) / k_t  # rates from the filtered load (the raw reading is noisy)
+    flex_rate = -data.gradient(tau) / k_t  # rates from the filtered load (the raw reading is noisy)
     locked = rig.fixture == "locked" and "force_loadcell" in log.columns
     if locked:
         # The load cell's own deflection places the lever, the motor sits behind it by the flexure's twist and the
@@ -113,7 +118,7 @@ def measured_state(log: RunLog, rig: Rig, data: Prepared, *, at_rest: bool = Fal
         # Positions from the raw reading: the 25 Hz filter rounds the load's stick-slip corners by several
         # 0.01 N·m, which a window starting there would keep in the flexure.
         k_lc = derived.loadcell_rot_stiffness_nm_per_rad
-        velocity = np.gradient(tau, data.dt) / k_lc - flex_rate
+        velocity = data.gradient(tau) / k_lc - flex_rate
         tau = np.asarray(log["force_loadcell"], dtype=float) * rig.params.lever.length_m
         q_lever_loadcell = tau / k_lc
         stop_rad_per_nm = stop_compliance_rad_per_nm(rig)
@@ -138,6 +143,20 @@ def measured_state(log: RunLog, rig: Rig, data: Prepared, *, at_rest: bool = Fal
     return testbed_state
 
 
+def _compliance_state(rig: Rig, data: Prepared, velocity: np.ndarray
+                      ) -> tuple[np.ndarray, np.ndarray] | tuple[None, None]:
+    """A rigid joint with drivetrain compliance: the spring's deflection [rad | m] the measured motion implies,
+    quasi-static (the compliant part φ·m follows the measured acceleration a: deflection -φ·m·a/k), and its rate
+    (zero: a third derivative of the encoder is noise); (None, None) without compliance. Started unloaded, the
+    spring would ring at the resonance through every window that starts while the joint accelerates."""
+    body = next((r.compliant_body for r in realisations(rig) if r.compliant_body is not None), None)
+    if body is None:
+        return None, None
+    fraction, stiffness, _ = body
+    deflection = -fraction * rig.rigid["inertia"] * data.gradient(velocity) / stiffness
+    return deflection, np.zeros(len(deflection))
+
+
 STOP_CALIBRATION_NM = 10.0  # [N·m] held on the locked lever to measure the stop's compliance
 STOP_CALIBRATION_TICKS = 300  # control ticks of that hold (the stop settles within a few ms)
 
@@ -152,8 +171,7 @@ def stop_compliance_rad_per_nm(rig: Rig) -> float:
         raise ValueError("the stop's compliance is measured on the locked fixture")
     plant = testbed_plant(rig)
     plant.reset(backlash_side=1)
-    for _ in range(STOP_CALIBRATION_TICKS):
-        plant.step(STOP_CALIBRATION_NM)
+    run_open_loop(plant, np.full(STOP_CALIBRATION_TICKS, STOP_CALIBRATION_NM), progress=False)
     depth = abs(plant.backlash_angle_rad) - 0.5 * rig.params.backlash.width_rad
     return max(depth, 0.0) / abs(plant.flexure_torque_nm)
 

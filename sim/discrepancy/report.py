@@ -8,6 +8,7 @@ from pathlib import Path
 import numpy as np
 
 from sim.discrepancy.analysis import DiscrepancyResult
+from sim.discrepancy.effects import EFFECTS
 from sim.figures import save_figure
 
 SIGNATURES_SHOWN = 6  # strongest signatures listed in the text report
@@ -42,6 +43,8 @@ def format_result(result: DiscrepancyResult) -> str:
                  f"{split['guard_s']} s filter guards")
     for entry in b["time_convention"]:
         lines.append(f"  time convention of {entry['log']}: {entry['time_convention']} ({entry['from']})")
+    if b.get("time_convention_mismatch"):
+        lines.append(f"  wrong time convention? {b['time_convention_mismatch']}")
     for key, entry in b["free_parameters"].items():
         line = f"  re-fitted baseline {key}: {entry['value']:.6g} {entry['unit']} (rig {entry['rig']:.6g})"
         if "at_bound" in entry:
@@ -50,7 +53,7 @@ def format_result(result: DiscrepancyResult) -> str:
                      f"the rig's value is far off, or another effect pulls it there")
         lines.append(line)
     lines.append("Baseline held-out RMSE: " + ", ".join(
-        f"{c} {v:.4g} {result.units[c]}" if math.isfinite(v) else f"{c} n/a (no sample counts)"
+        f"{c} {v:.4g} {result.units[c]}" if math.isfinite(v) else f"{c} n/a (no held-out samples)"
         for c, v in b["rmse_heldout"].items()))
     lines.append("Strongest signatures in the baseline residual (held-out correlation; a shape the residual "
                  "resembles is a candidate, a finding needs the significance rule):")
@@ -84,6 +87,8 @@ def format_result(result: DiscrepancyResult) -> str:
         lines += [f"  {line}" for line in s.description + s.refused]
     lines.append("Residual left (held out): " + ", ".join(f"{c} {v:.4g} {result.units[c]}"
                                                           for c, v in s.rmse.items() if math.isfinite(v))
+                 + f"; effort error in a typical {result.baseline['config']['block_s']:g} s block (median) "
+                 f"{100 * s.remainder_fraction:.2g} % of the command's RMS"
                  + f"; a generic model of it explains {max(100 * s.generic_gain, 0.0):.1f} %; Ljung-Box p "
                  f"{s.whiteness.get('p_value', float('nan')):.3g}")
     lines.append("Relative effort prediction error ‖F - F̂‖/‖F‖ (F the command in the analysis band):")
@@ -93,7 +98,9 @@ def format_result(result: DiscrepancyResult) -> str:
                      f"final {e['final']:.4f}")
     lines.append("The logs cannot reveal:")
     for name, why in b["not_identifiable"].items():
-        lines.append(f"  {name}: {why}")
+        effect = EFFECTS[name]
+        fine = ", with a fine motor encoder" if effect.needs_fine_motor_encoder else ""
+        lines.append(f"  {name}: {why} (the {effect.revealing_experiment!r} experiment reveals it{fine})")
     if result.replay.get("skipped"):
         lines.append(f"MuJoCo replay skipped: {result.replay['skipped']}")
     elif result.replay:

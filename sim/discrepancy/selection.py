@@ -49,15 +49,17 @@ from __future__ import annotations
 import math
 import sys
 import time
-from concurrent.futures import ProcessPoolExecutor, as_completed
 from dataclasses import dataclass, field, replace
 from typing import Any
 
 import numpy as np
+import threadpoolctl
 
 from sim.discrepancy.effects import EFFECTS
 from sim.discrepancy.fit import FitOutcome, at_bound_of, fit_keys, standard_errors
 from sim.discrepancy.model import Surrogate
+from sim.discrepancy.signals import AnalysisConfig
+from sim.executor import Executor
 
 RULES = ("bound", "bic", "gain", "size", "events", "moved", "stationary")
 WIDEN = 10.0  # a fit at a bound is repeated with bounds this many times as wide
@@ -303,43 +305,42 @@ def against_model_log(candidate: Candidate, model_log_model: Surrogate, theta: d
                    model_log_parameters=params)
 
 
-# ------------------------------------------------------------------------------ worker process (parallel fits)
-_WORKER: dict[str, Surrogate] = {}
+# ------------------------------------------------------------------------------ the round's fits (sim.executor)
+_blas_limited = False  # set once in a worker process: its BLAS runs one thread
 
 
-def _init_worker(model: Surrogate) -> None:
-    _WORKER["model"] = model
+def _fit(model: Surrogate, args: tuple) -> Candidate:
+    return fit_candidate(model, *args)
 
 
-def _fit_in_worker(args: tuple) -> Candidate:
-    return fit_candidate(_WORKER["model"], *args)
+def _fit_one_blas_thread(model: Surrogate, args: tuple) -> Candidate:
+    """:func:`_fit` in a worker process limited to one BLAS thread (the workers share the cores; the small
+    products of a fit gain nothing from BLAS threads that would compete with the other workers)."""
+    global _blas_limited
+    if not _blas_limited:
+        threadpoolctl.threadpool_limits(limits=1, user_api="blas")
+        _blas_limited = True
+    return fit_candidate(model, *args)
+
+
+def make_executor(config: AnalysisConfig) -> Executor:
+    """The executor of the candidate fits: ``config.workers`` local processes (1: this process), or the Ray
+    cluster at ``config.ray``."""
+    return Executor(workers=config.workers, ray=config.ray)
 
 
 def run_round(model: Surrogate, candidates: list[str], theta: dict[str, float], accepted: tuple[str, ...],
-              scales: dict[str, float], before: ChannelScore, pool: ProcessPoolExecutor | None,
+              scales: dict[str, float], before: ChannelScore, executor: Executor | None = None,
               progress: bool = False, label: str = "") -> list[Candidate]:
-    """Fit and score every candidate (in ``pool`` if given), best ΔBIC first; one progress line per candidate."""
+    """Fit and score every candidate (on ``executor``; default: this process), best ΔBIC first; one progress
+    line per candidate. Worker processes run one BLAS thread each; this process keeps its own count."""
+    executor = executor or Executor()
     args = [(effect, theta, accepted, scales, before) for effect in candidates]
-    scores = []
-
-    def report(c: Candidate) -> None:
-        scores.append(c)
-        if progress:
+    parallel = executor.workers > 1 or executor.ray_address is not None
+    scores = executor.map(_fit_one_blas_thread if parallel else _fit, args, shared=model)
+    if progress:
+        for i, c in enumerate(scores, start=1):
             verdict = "passes" if c.passes else f"rejected ({c.rejected_by})"
-            print(f"discrepancy: {label}{len(scores)}/{len(args)} {c.effect}: held-out gain {100 * c.gain:.1f} %, "
+            print(f"discrepancy: {label}{i}/{len(args)} {c.effect}: held-out gain {100 * c.gain:.1f} %, "
                   f"ΔBIC {c.delta_bic:.1f}, {verdict} ({c.seconds:.1f} s)", file=sys.stderr, flush=True)
-
-    if pool is None:
-        for a in args:
-            report(fit_candidate(model, *a))
-    else:
-        for future in as_completed([pool.submit(_fit_in_worker, a) for a in args]):
-            report(future.result())
     return sorted(scores, key=lambda s: (s.delta_bic, s.effect))
-
-
-def make_pool(model: Surrogate) -> ProcessPoolExecutor | None:
-    """A process pool holding the surrogate once per worker (None for ``workers == 1``)."""
-    if model.config.workers <= 1:
-        return None
-    return ProcessPoolExecutor(max_workers=model.config.workers, initializer=_init_worker, initargs=(model,))

@@ -11,6 +11,10 @@ the filter's cut-off (100 Hz for a 1 kHz log and the default 25 Hz band). The fi
 above the cut-off, so the grid loses no information the analysis uses, and a long log costs a tenth of the
 evaluations. Raw signals stay at the log's rate where a term needs them (the command before a nonlinear map,
 the motor angle driving the bristle state).
+
+Logs joined into one (several runs of a rig, ``segments``) are filtered and differentiated each on its own: a
+filter or a difference across the joint of two runs would spread the step between their last and first samples
+into both.
 """
 
 from __future__ import annotations
@@ -99,7 +103,10 @@ class AnalysisConfig:
     replay_window_s : float
         Length of the MuJoCo replay windows, each re-initialised from the measured state [s].
     workers : int
-        Processes for the candidate fits (1: in this process).
+        Processes for the candidate fits (1: in this process; each worker runs one BLAS thread).
+    ray : str or None
+        A Ray cluster for the candidate fits (``"local"``: start one on this machine; an address; ``"auto"``),
+        instead of ``workers`` local processes (:class:`sim.executor.Executor`).
     model_log_seed : int
         Seed of the noise drawn for the model's own log (:mod:`sim.discrepancy.null`).
     max_effects : int
@@ -122,6 +129,7 @@ class AnalysisConfig:
     stability_tolerance: float = 0.2
     replay_window_s: float = 0.5
     workers: int = 1
+    ray: str | None = None
     model_log_seed: int = 0
     max_effects: int = 6
 
@@ -139,6 +147,8 @@ class AnalysisConfig:
             if not (low <= value <= high) or (name in ("filter_cutoff_hz", "replay_window_s", "block_s")
                                               and value == 0):
                 raise ValueError(f"{name} = {value!r}: valid range [{low:g}, {high:g}]")
+        if self.ray is not None and (not isinstance(self.ray, str) or not self.ray):
+            raise ValueError(f"ray = {self.ray!r}: None, 'local', 'auto' or a cluster's address")
         for name in ("workers", "max_effects"):
             if getattr(self, name) < 1:
                 raise ValueError(f"{name} = {getattr(self, name)}: valid range [1, inf)")
@@ -182,6 +192,7 @@ class Prepared:
     hold_s: float  # how long each logged command was held [s] (the log's step, unless decimated)
     has_motor_encoder: bool  # the log has q_motor (the position is the motor's, not the lever's)
     band_fraction: float  # 2·f_c/f_s: independent samples per full-rate sample in the filtered band [1]
+    bounds: tuple[tuple[int, int], ...] = ()  # full-rate [start, stop) of each joined log (empty: one log)
 
     @property
     def grid_step(self) -> int:
@@ -192,13 +203,26 @@ class Prepared:
         """Independent samples per grid sample in the filtered band [1]."""
         return min(1.0, self.band_fraction * self.grid_step)
 
+    def per_log(self, fn, x: np.ndarray) -> np.ndarray:
+        """``fn`` applied to each joined log's part of a full-rate signal, the parts joined again."""
+        return per_log(fn, x, self.bounds)
+
     def filt(self, x: np.ndarray) -> np.ndarray:
         """The zero-phase low-pass of a full-rate signal, on the analysis grid."""
-        return sosfiltfilt(self.sos, x)[self.grid]
+        return self.filt_full(x)[self.grid]
 
     def filt_full(self, x: np.ndarray) -> np.ndarray:
-        """The zero-phase low-pass of a full-rate signal, at full rate."""
-        return sosfiltfilt(self.sos, x)
+        """The zero-phase low-pass of a full-rate signal, at full rate (each joined log on its own)."""
+        return self.per_log(lambda part: sosfiltfilt(self.sos, part), x)
+
+    def derivative(self, x: np.ndarray) -> np.ndarray:
+        """:func:`derivative` of a full-rate signal [x's unit/s], each joined log on its own."""
+        return self.per_log(lambda part: derivative(part, self.dt), x)
+
+    def gradient(self, x: np.ndarray) -> np.ndarray:
+        """``np.gradient`` of a full-rate signal [x's unit/s] (second-order central differences), each joined log
+        on its own."""
+        return self.per_log(lambda part: np.gradient(part, self.dt), x)
 
     def sine_gain(self, frequency_hz: float) -> float:
         """Gain of the zero-phase filter on a sine of ``frequency_hz`` [1] (|H|², no phase)."""
@@ -218,6 +242,15 @@ def derivative(x: np.ndarray, dt: float) -> np.ndarray:
     if len(x) >= 5:
         out[2:-2] = (x[:-4] - 8.0 * x[1:-3] + 8.0 * x[3:-1] - x[4:]) / (12.0 * dt)
     return out
+
+
+def per_log(fn, x: np.ndarray, bounds: tuple[tuple[int, int], ...]) -> np.ndarray:
+    """``fn`` (array -> array of the same length) applied to ``x[a:b]`` for each of ``bounds`` ([start, stop)
+    of the joined logs, covering ``x``; empty: ``x`` is one log), the results joined."""
+    x = np.asarray(x, dtype=float)
+    if len(bounds) <= 1:
+        return fn(x)
+    return np.concatenate([fn(x[a:b]) for a, b in bounds])
 
 
 def smallest_step(x: np.ndarray) -> float:
@@ -243,13 +276,15 @@ def decimation_factor(samples: int, dt: float, config: AnalysisConfig, rig: Rig)
     return max(1, min(math.ceil(samples / MAX_ANALYSIS_SAMPLES), most))
 
 
-def decimate(log: RunLog, factor: int) -> RunLog:
-    """Every column of ``log`` low-passed below the lower rate's Nyquist frequency (zero-phase) and every
-    ``factor``-th sample kept: what lies above the analysis band goes, the band stays."""
+def decimate(log: RunLog, factor: int, bounds: tuple[tuple[int, int], ...] = ()) -> RunLog:
+    """Every column of ``log`` low-passed below the lower rate's Nyquist frequency (zero-phase; each of the joined
+    logs of ``bounds`` on its own, see :func:`per_log`) and every ``factor``-th sample kept: what lies above the
+    analysis band goes, the band stays."""
     t = np.asarray(log["time"], dtype=float)
     dt = float(np.median(np.diff(t)))
     sos = butter(FILTER_ORDER, ANTI_ALIAS_OF_NYQUIST * 0.5 / (dt * factor), fs=1.0 / dt, output="sos")
-    columns = {name: (t if name == "time" else sosfiltfilt(sos, np.asarray(values, dtype=float)))[::factor].copy()
+    low_pass = lambda part: sosfiltfilt(sos, part)  # noqa: E731
+    columns = {name: (t if name == "time" else per_log(low_pass, values, bounds))[::factor].copy()
                for name, values in log.columns.items()}
     return type(log)(columns, dict(log.units), dict(log.meta))
 
@@ -300,18 +335,28 @@ def prepare(log: RunLog, rig: Rig, config: AnalysisConfig, *, segments: list[Seg
     has = cols.__contains__
     testbed = rig.model == "testbed"
     position = np.asarray(cols["q_motor"] if testbed and has("q_motor") else cols["q"], dtype=float)
-    full = lambda x: sosfiltfilt(sos, np.asarray(x, dtype=float))  # noqa: E731
-    pos_f = full(position)
-    velocity = derivative(pos_f, dt)
-    acceleration = derivative(velocity, dt)
     segments = segments or [(0, n, config.fit_fraction)]
+    bounds = tuple((a, b) for a, b, _ in segments) if len(segments) > 1 else ()
+    if bounds and (bounds[0][0] != 0 or bounds[-1][1] != n
+                   or any(b != a for (_, b), (a, _) in zip(bounds[:-1], bounds[1:], strict=True))):
+        raise ValueError(f"segments {bounds} must cover the log's {n} samples, each starting where the last ends")
+
+    def full(x) -> np.ndarray:
+        return per_log(lambda part: sosfiltfilt(sos, part), x, bounds)
+
+    def diff(x) -> np.ndarray:
+        return per_log(lambda part: derivative(part, dt), x, bounds)
+
+    pos_f = full(position)
+    velocity = diff(pos_f)
+    acceleration = diff(velocity)
     step_velocity = np.empty(n)
     step_velocity[1:] = np.diff(position) / dt
     step_velocity[[start for start, _, _ in segments]] = 0.0  # no motion across the joint of two logs
     q = lever_acc = tau_lc = None
     if has("q"):
         q_f = full(cols["q"])
-        q, lever_acc = q_f[grid], derivative(derivative(q_f, dt), dt)[grid]
+        q, lever_acc = q_f[grid], diff(diff(q_f))[grid]
     elif testbed:
         lever_acc = acceleration[grid]
     if testbed and has("force_loadcell"):
@@ -342,7 +387,7 @@ def prepare(log: RunLog, rig: Rig, config: AnalysisConfig, *, segments: list[Seg
                     split_time=float(t[split]), sos=sos, load_source=load_source,
                     position_resolution=smallest_step(position) if resolution is None else resolution,
                     hold_s=dt if hold_s is None else hold_s, has_motor_encoder=has("q_motor"),
-                    band_fraction=min(1.0, 2.0 * config.filter_cutoff_hz * dt))
+                    band_fraction=min(1.0, 2.0 * config.filter_cutoff_hz * dt), bounds=bounds)
 
 
 def testbed_constants(rig: Rig) -> dict[str, float]:

@@ -25,7 +25,7 @@ from __future__ import annotations
 
 import functools
 import math
-from collections.abc import Callable
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 
 import mujoco
@@ -33,14 +33,24 @@ import numpy as np
 
 from sim.discrepancy.effects import EFFECTS, Realisation
 from sim.discrepancy.rig import Rig
+from sim.measurements import (
+    CurrentEstimate,
+    FlexureTorque,
+    LeverAngle,
+    LeverVelocity,
+    LoadCellForce,
+    MotorEncoder,
+    MotorVelocity,
+)
 from sim.plant import SIGNAL_UNITS, Plant, prime_ctrl_history, warn_mujoco_warnings
+from sim.run import run_loop
 
 RIGID_SUBSTEPS = 5  # rigid joint: physics steps per control tick (no stiff mode; the dry-friction row's time
 # constant is two physics steps, as the testbed's tuned rows)
 RIGID_FRICTION_IMPEDANCE = 0.9999  # solimpfriction d0 = dwidth of the rigid joint's dry friction (MuJoCo's max)
 CONTROL_PERIOD_S = 1e-3  # rigid joint: the 1 kHz control rate of the project's logs
 
-# command(k, state) -> effort command [N·m | N]; state holds the signals of the previous tick (SI)
+# command(k, state) -> effort command [N·m | N]; state holds the signals at the end of the previous tick (SI)
 CommandFn = Callable[[int, dict[str, float]], float]
 InitialState = Callable[[mujoco.MjModel, mujoco.MjData], None]  # sets qpos/qvel/act after a reset
 
@@ -93,15 +103,44 @@ def testbed_plant(rig: Rig) -> Plant:
     return plant
 
 
+class CommandController:
+    """A command function as a :class:`sim.run.Controller`: ``command(k, observation)`` at tick k, passed through
+    the rig's command map (:func:`command_map`); logs the command as sent, ``effort_command`` [N·m]."""
+
+    log_units = {"effort_command": "N·m"}
+
+    def __init__(self, command: CommandFn, cmd_map: Callable[[float], float]) -> None:
+        self.command, self.cmd_map = command, cmd_map
+        self.reset()
+
+    def reset(self) -> None:
+        self._k, self._sent = 0, 0.0
+
+    def step(self, observation: Mapping[str, float]) -> float:
+        self._sent = self.command(self._k, observation)
+        self._k += 1
+        return self.cmd_map(self._sent)
+
+    def log_values(self) -> Sequence[float]:
+        return (self._sent,)
+
+
+# what a command function observes on the testbed: the true signals at the end of the previous tick
+TESTBED_STATE = (LeverAngle(), LeverVelocity(), MotorEncoder(), MotorVelocity(), FlexureTorque(), CurrentEstimate(),
+                 LoadCellForce())
+
+
 def run_testbed(rig: Rig, command: CommandFn, n_ticks: int, *, backlash_side: int = 0,
                 initial: InitialState | None = None, plant: Plant | None = None,
                 previous_commands: np.ndarray | None = None) -> SimulatedRun:
-    """Run the testbed of ``rig`` for ``n_ticks`` with a command function; true signals of every tick.
+    """Run the testbed of ``rig`` for ``n_ticks`` with a command function through the project's tick loop
+    (:func:`sim.run.run_loop`); true signals of every tick, ``tau_cmd`` the command as sent (before the map).
 
-    ``initial`` sets the state after the reset (a replay window starting from a measured state);
-    ``previous_commands`` [N·m], the commands of the ticks before (oldest first), put the driver in the state
-    they leave it in (:meth:`sim.plant.Plant.hold_commands`); ``plant`` reuses a plant built by
-    :func:`testbed_plant` for this rig (windows of one replay).
+    The command function observes ``TESTBED_STATE`` (q, qd, q_motor, qd_motor, tau_flexure,
+    tau_current_estimate, force_loadcell; SI, true values). ``initial`` sets the state after the reset (a replay
+    window starting from a measured state); ``previous_commands`` [N·m], the commands of the ticks before (oldest
+    first), put the driver in the state they leave it in (:meth:`sim.plant.Plant.hold_commands`); ``plant``
+    reuses a plant built by :func:`testbed_plant` for this rig (windows of one replay).
     """
     plant = plant or testbed_plant(rig)
     plant.reset(backlash_side=backlash_side)
@@ -113,29 +152,15 @@ def run_testbed(rig: Rig, command: CommandFn, n_ticks: int, *, backlash_side: in
         plant.hold_commands([cmd_map(float(u)) for u in previous_commands])
     load = joint_load(rig)
     lever_loads = [r.lever_load for r in realisations(rig) if r.lever_load is not None]
-    motor_force = plant.data.joint("motor").qfrc_applied  # output-referred; cleared by Plant.reset
-    names = list(SIGNAL_UNITS)
-    out = np.empty((n_ticks, len(names)))
-    times = np.empty(n_ticks)
-    row = np.empty(len(names))
-    index = {name: i for i, name in enumerate(names)}
-    plant.read_signals(row)
-    state = {key: float(row[index[key]]) for key in ("q", "qd", "q_motor", "qd_motor", "tau_flexure",
-                                                     "tau_current_estimate", "force_loadcell")}
     t0 = plant.time_s
-    for k in range(n_ticks):
-        u = command(k, state)
-        if load is not None:
-            motor_force[0] = -load(state["q_motor"], state["qd_motor"], plant.time_s - t0)
-        tau_ext = -sum(f(state["q"]) for f in lever_loads) if lever_loads else 0.0
-        plant.step(cmd_map(u), tau_ext)
-        plant.read_signals(row)
-        row[index["tau_cmd"]] = u  # the log holds the command as sent, not as delivered
-        out[k] = row
-        times[k] = plant.time_s
-        for key in state:
-            state[key] = row[index[key]]
-    columns = {"time": times, **{name: out[:, i].copy() for i, name in enumerate(names)}}
+    motor_load = (None if load is None else
+                  lambda k, p: -load(p.motor_angle_rad, p.motor_velocity_rad_s, p.time_s - t0))
+    external = (None if not lever_loads else
+                lambda k, p: -sum(f(p.output_angle_rad) for f in lever_loads))
+    log = run_loop(plant, CommandController(command, cmd_map), n_ticks, measurements=TESTBED_STATE,
+                   external=external, motor_load=motor_load)
+    columns = {"time": log["time"], **{name: log[name] for name in SIGNAL_UNITS}}
+    columns["tau_cmd"] = log["effort_command"]
     return SimulatedRun(columns, {"time": "s", **SIGNAL_UNITS})
 
 
@@ -200,7 +225,10 @@ def stribeck_giveback(rig: Rig) -> Callable[[float], float] | None:
 def run_rigid(rig: Rig, command: CommandFn, n_ticks: int, *, initial: InitialState | None = None,
               previous_commands: np.ndarray | None = None) -> SimulatedRun:
     """Run a rigid joint rig; columns time, tau_cmd, q, qd (SI: N and m for a slide). ``initial`` and
-    ``previous_commands`` as for :func:`run_testbed` (the delay buffer holds the past commands)."""
+    ``previous_commands`` as for :func:`run_testbed` (the delay buffer holds the past commands).
+
+    A rigid joint is stepped here, not by :func:`sim.run.run_loop`: it is a one-body MJCF without the testbed
+    plant's signals, driver and fixtures, and its loads act at every physics step, not once per control tick."""
     model = _compiled(rigid_xml(rig))
     data = mujoco.MjData(model)
     if initial is not None:

@@ -11,14 +11,15 @@ significance rule as a candidate effect):
 - the strongest lines of the residual's spectrum on the fit part (each a sine and a cosine in time).
 
 The command itself is not in the basis: with it, the basis holds every term of the balance and rebuilds any
-residual by scaling the whole balance to nothing. If the final model's held-out effort error exceeds
-``max_remainder`` of the command (RMS), or if that generic model explains a significant part of the held-out
-residual (the candidates' rules 'bic', 'gain', 'size' and 'events'), the verdict is a discrepancy the
-library does not name, described by the basis terms that carry it ("effort error grows with v|v|", "a 6.0 Hz
-line not locked to position"), with the RMSE it leaves. So is a candidate effect that would explain a third or
-more of the residual but was refused because its parameters sit at a bound of the rig's plausible range or drift
-across the log (non-stationary): the nearest library effect is then named as not fitting, not as the finding.
-The whiteness of the held-out residual (Ljung-Box, at the band's rate of independent samples) is reported beside.
+residual by scaling the whole balance to nothing. If the final model's held-out effort error (the median of its RMS
+per block of ``block_s``, :func:`median_block_rms`) exceeds ``max_remainder`` of the command (RMS), or if that
+generic model explains a significant part of the held-out residual (the candidates' rules 'bic', 'gain', 'size' and
+'events'), the verdict is a discrepancy the library does not name, described by the basis terms that carry it
+("effort error grows with v|v|", "a 6.0 Hz line not locked to position"), with the RMSE it leaves. So is a
+candidate effect that would explain a third or more of the residual but was refused because its parameters sit at a
+bound of the rig's plausible range or drift across the log (non-stationary): the nearest library effect is then
+named as not fitting, not as the finding. The whiteness of the held-out residual (Ljung-Box, at the band's rate of
+independent samples) is reported beside.
 """
 
 from __future__ import annotations
@@ -42,7 +43,7 @@ from sim.discrepancy.selection import (
     event_test,
     passes_events,
 )
-from sim.discrepancy.signals import derivative, rms
+from sim.discrepancy.signals import rms
 
 SPECTRAL_TERMS = 2  # spectral lines of the residual in the generic basis
 WHITENESS_LAGS = 10  # Ljung-Box lags (independent samples)
@@ -84,7 +85,9 @@ class Structure:
     generic_gain : float
         Held-out RMSE drop a generic model of the effort residual achieves [1].
     remainder_fraction : float
-        Held-out effort RMSE left, as a fraction of the command's RMS [1].
+        The effort error left on the held-out part, as a fraction of the command's RMS [1]: the median of its RMS
+        per block of the rule 'events' (:func:`median_block_rms`), robust to a transient that one RMS over the
+        whole part would be dominated by.
     terms : dict of str to float
         Held-out gain of each basis term alone [1].
     lines : list of dict
@@ -118,7 +121,7 @@ def _basis(model: Surrogate, residual: np.ndarray) -> dict[str, list[np.ndarray]
     terms: dict[str, list[np.ndarray]] = {
         "velocity": [v], "velocity squared": [v * np.abs(v)], "sign of velocity": [np.where(sliding, np.sign(v), 0.0)],
         "acceleration": [d.acceleration], "position": [d.position],
-        "command rate": [d.filt(derivative(d.u_full, d.dt))], "time": [d.t - d.t[0]],
+        "command rate": [d.filt(d.derivative(d.u_full))], "time": [d.t - d.t[0]],
     }
     sign = np.where(sliding, np.sign(v), 0.0)
     x = d.position - float(np.mean(d.position))
@@ -169,6 +172,19 @@ def ljung_box(x: np.ndarray, lags: int) -> dict[str, float]:
     return {"q": float(q), "p_value": float(chi2.sf(q, lags)), "lags": lags}
 
 
+def median_block_rms(residual: np.ndarray, block: int) -> float:
+    """The median over consecutive blocks of ``block`` samples of each block's RMS (finite samples only; a last
+    partial block counts if it holds half a block) [residual's unit]; the RMS of all if there is no full block."""
+    x = np.asarray(residual, dtype=float)
+    values = []
+    for start in range(0, len(x), block):
+        part = x[start:start + block]
+        part = part[np.isfinite(part)]
+        if len(part) >= max(1, block // 2):
+            values.append(rms(part))
+    return float(np.median(values)) if values else rms(x)
+
+
 def residual_structure(model: Surrogate, theta: dict[str, float], current: ChannelScore,
                        refused: list[Candidate]) -> Structure:
     """The final model's residual structure (module docstring)."""
@@ -215,13 +231,15 @@ def residual_structure(model: Surrogate, theta: dict[str, float], current: Chann
     if significant and not description:
         description.append("the residual holds structure no single basis term carries")
     rmse = {c: current.rmse[c] for c in current.rmse}
-    fraction = rmse["effort"] / model.command_rms if model.command_rms > 0 else float("nan")
+    typical = median_block_rms(residual[d.held], block)
+    fraction = typical / model.command_rms if model.command_rms > 0 else float("nan")
     too_large = fraction >= cfg.max_remainder
     unexplained = significant or bool(nearest) or too_large
     if unexplained:
         unit = channel_unit("effort", model.rig.joint)
-        description.insert(0, f"the final model leaves {rmse['effort']:.4g} {unit} RMS of effort error held out "
-                              f"({100 * fraction:.2g} % of the command's RMS"
+        description.insert(0, f"the final model leaves {rmse['effort']:.4g} {unit} RMS of effort error held out, "
+                              f"{typical:.4g} {unit} in a typical block of {cfg.block_s:g} s (median; "
+                              f"{100 * fraction:.2g} % of the command's RMS"
                               + (f", above the {100 * cfg.max_remainder:g} % a model of the right physics leaves"
                                  if too_large else "")
                               + f"); a generic model of it explains {max(100 * gain, 0):.0f} %")

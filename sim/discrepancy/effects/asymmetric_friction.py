@@ -18,6 +18,7 @@ RIGID_RANGE_OF_COULOMB = (0.2, 0.4)  # a rigid hinge: x its Coulomb level
 
 class AsymmetricFriction(Effect):
     name = "asymmetric_friction"
+    revealing_experiment = "free"
     description = "friction levels that differ with the direction of motion"
     params = (Param("asymmetry", "N·m", "N", "F_c+ - F_c-: positive-direction minus negative-direction level"),)
     rigs = frozenset({TESTBED, HINGE})

@@ -18,6 +18,7 @@ STARTS = (0.3, 2.0)  # x the current width
 
 class Backlash(Effect):
     name = "backlash"
+    revealing_experiment = "locked"
     description = "dead band in the gear: the hub lags the motor by half the band after a torque reversal"
     params = (Param("backlash_width", "rad", "m", "total dead band between gear and hub",
                     fields={"testbed": "backlash.width_rad"}, valid=(0.0, 1.0)),)

@@ -172,6 +172,11 @@ class Effect:
     signature: ClassVar[str] = ""  # diagnostics signature that points at it
     order: ClassVar[int] = 100  # position in reports and candidate lists
     refined_starts: ClassVar[int] = 1  # a fit refines the best this many starts (a cost with several minima)
+    # the experiment whose log reveals it (experiments.synthetic_logs.EXPERIMENTS; docs/discrepancy.md, "Effects
+    # and the experiments that reveal them"), and whether that log needs a fine motor encoder (a finer position
+    # step than the 16-bit one resolves its motion)
+    revealing_experiment: ClassVar[str]
+    needs_fine_motor_encoder: ClassVar[bool] = False
 
     @property
     def keys(self) -> tuple[str, ...]:

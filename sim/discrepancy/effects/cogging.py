@@ -16,7 +16,8 @@ import numpy as np
 
 from sim.discrepancy.effects.base import TWO_PI, Effect, Param, Realisation, canonical_sine
 
-MIN_PERIODS_IN_RANGE = 3  # a period must fit at least 3 times in the position range
+MIN_PERIODS_IN_RANGE = 5  # a period must fit at least 5 times in the position range (the library's periodicity
+# rule: fewer periods do not tell a periodic effort from a smooth one)
 MAX_POLES = 60  # the testbed: pole counts tried, 1..60
 RIGID_PERIOD_GRID = 600  # a rigid joint: log-spaced periods screened
 SCREENED = 3  # a rigid joint: the best screened periods each start a fit
@@ -39,6 +40,7 @@ def candidate_periods(model, position_span: float) -> np.ndarray:
 
 class Cogging(Effect):
     name = "cogging"
+    revealing_experiment = "free"
     description = "position-periodic torque of the magnets"
     params = (Param("cogging_amplitude", "N·m", "N", "cogging amplitude A"),
               Param("cogging_period", "rad", "m", "period P in joint position", neutral=None, default=1.0),

@@ -14,6 +14,7 @@ MAX_LEVEL_OF_EFFORT = 2.0  # fit bound: a friction level up to twice the largest
 
 class CoulombFriction(Effect):
     name = "coulomb_friction"
+    revealing_experiment = "free"
     description = "dry friction level while sliding"
     params = (Param("coulomb", "N·m", "N", "sliding (Coulomb) friction level F_c",
                     fields={"testbed": "friction.coulomb_torque_nm", "hinge": "friction.coulomb",

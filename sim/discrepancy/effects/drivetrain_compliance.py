@@ -45,6 +45,7 @@ def spring_and_damper(mass: float, fraction: float, frequency_hz: float, damping
 
 class DrivetrainCompliance(Effect):
     name = "drivetrain_compliance"
+    revealing_experiment = "hinge"
     description = "a second mass behind a spring-damper (belt, long shaft, harmonic drive)"
     params = (Param("compliant_fraction", "1", "1", "compliant part of the inertia φ = m2/m", valid=(0.0, 1.0),
                     firm=True),

@@ -12,6 +12,7 @@ UP, DOWN = (1.05, 1.15), (0.85, 0.95)  # synthetic draws: x the rig's gain
 
 class EffortGain(Effect):
     name = "effort_gain"
+    revealing_experiment = "locked"
     description = "effort delivered per unit of command (torque constant, current-sense gain)"
     params = (Param("effort_gain", "1", "1", "delivered effort per unit command", neutral=1.0,
                     fields={"hinge": "effort_gain", "slide": "effort_gain"}, valid=(0.0, 1e6), firm=True),)

@@ -20,6 +20,7 @@ RIGID_RANGE_OF_COULOMB = (1.0, 2.0)  # synthetic draws: x the rig's Coulomb leve
 
 class Gravity(Effect):
     name = "gravity"
+    revealing_experiment = "free"
     description = "weight of the moving part on a tilted axis (a slide: any constant force)"
     params = (Param("gravity_amplitude", "N·m", "N", "m·g·r (hinge) or m·g·sin(incline) (slide)",
                     fields={"hinge": "gravity_amplitude", "slide": "gravity_amplitude"}, valid=(-1e6, 1e6)),

@@ -11,6 +11,7 @@ UP, DOWN = (1.2, 1.4), (0.65, 0.8)  # synthetic draws: x the rig's value
 
 class Inertia(Effect):
     name = "inertia"
+    revealing_experiment = "hinge"
     description = "inertia (mass) of the moving part"
     params = (Param("inertia", "kg·m²", "kg", "inertia (mass) of the joint, output-referred", neutral=None,
                     fields={"testbed": "motor.rotor_inertia_kgm2", "hinge": "inertia_kgm2", "slide": "mass_kg"},

@@ -13,6 +13,7 @@ MIN_LOAD_RANGE_NM = 1.0  # the transmitted torque must span 1 N·m
 
 class LoadDependentFriction(Effect):
     name = "load_dependent_friction"
+    revealing_experiment = "locked"
     description = "gear friction growing with the transmitted torque (efficiency)"
     params = (Param("load_coefficient", "1", "1", "dry friction per unit transmitted torque (1 - η)",
                     fields={"testbed": "friction.load_friction_coefficient"}, valid=(0.0, 1.0), firm=True),)

@@ -14,7 +14,7 @@ import numpy as np
 from sim.discrepancy.effects.base import TWO_PI, Effect, Param, Realisation, canonical_sine
 
 MAX_OF_EFFORT = 1.0  # fit bound: A up to the largest effort in the log
-MIN_PERIODS_IN_FIT = 5  # the lowest frequency: five periods in the fit part
+MIN_PERIODS = 5  # the lowest frequency: five periods in the fit part, and in the samples a line is looked for in
 MAX_OF_BAND = 0.9  # the highest frequency: 90 % of the analysis band
 SPECTRAL_STARTS = 4  # strongest spectral lines tried
 AMPLITUDE_OF_COULOMB = (0.5, 1.5)  # synthetic draws: x the rig's Coulomb level
@@ -24,11 +24,12 @@ FREQUENCY_HZ = (2.0, 10.0)  # synthetic draws
 def frequency_range(model) -> tuple[float, float]:
     """Frequencies the log can place a line at [Hz]."""
     fit_time = float(model.data.fit.sum()) * model.data.dt * model.data.grid_step
-    return MIN_PERIODS_IN_FIT / max(fit_time, 1e-9), MAX_OF_BAND * model.config.filter_cutoff_hz
+    return MIN_PERIODS / max(fit_time, 1e-9), MAX_OF_BAND * model.config.filter_cutoff_hz
 
 
 class PeriodicDisturbance(Effect):
     name = "periodic_disturbance"
+    revealing_experiment = "free"
     description = "effort at a fixed frequency, not locked to position (unbalance, a pump)"
     params = (Param("disturbance_amplitude", "N·m", "N", "amplitude A"),
               Param("disturbance_frequency", "Hz", "Hz", "frequency f", neutral=None, default=1.0,
@@ -78,7 +79,7 @@ class PeriodicDisturbance(Effect):
     def identifiable(self, model, theta):
         low, high = frequency_range(model)
         if low >= high:
-            return f"the fit part is too short to place a line below {high:.3g} Hz ({MIN_PERIODS_IN_FIT} periods)"
+            return f"the fit part is too short to place a line below {high:.3g} Hz ({MIN_PERIODS} periods)"
         return None
 
     def evidence(self, model, theta, residual, mask):
@@ -109,8 +110,9 @@ class PeriodicDisturbance(Effect):
 
 def spectral_lines(model, residual: np.ndarray, mask: np.ndarray, count: int) -> list[float]:
     """Frequencies of the ``count`` strongest local maxima of the residual's periodogram on ``mask``, within
-    :func:`frequency_range` [Hz]. Samples outside ``mask`` (the guards around stick-slip transitions, the other
-    part) count as zero on the grid's own time axis, so a line keeps its phase across the gaps."""
+    :func:`frequency_range` and with at least MIN_PERIODS periods in the samples of ``mask`` [Hz]. Samples outside
+    ``mask`` (the guards around stick-slip transitions, the other part) count as zero on the grid's own time axis,
+    so a line keeps its phase across the gaps."""
     index = np.flatnonzero(mask & np.isfinite(residual))
     if len(index) < 16:
         return []
@@ -122,6 +124,7 @@ def spectral_lines(model, residual: np.ndarray, mask: np.ndarray, count: int) ->
     power = np.abs(np.fft.rfft(x * np.hanning(len(x)), pad)) ** 2
     freqs = np.fft.rfftfreq(pad, step)
     low, high = frequency_range(model)
+    low = max(low, MIN_PERIODS / (int(inside.sum()) * step))
     inside_band = (freqs >= low) & (freqs <= high)
     peaks = np.flatnonzero(inside_band[1:-1] & (power[1:-1] >= power[:-2]) & (power[1:-1] >= power[2:])) + 1
     peaks = peaks[np.argsort(power[peaks])[::-1]][:count]

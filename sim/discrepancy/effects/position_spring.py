@@ -15,6 +15,7 @@ TYPICAL_HALF_SPAN = {"testbed": 3.0, "hinge": 2.0, "slide": 0.19}  # synthetic d
 
 class PositionSpring(Effect):
     name = "position_spring"
+    revealing_experiment = "free"
     description = "effort pulling the joint toward a rest position (cables, compensation springs)"
     params = (Param("spring_stiffness", "N·m/rad", "N/m", "stiffness k", valid=(0.0, 1e9)),
               Param("spring_rest_position", "rad", "m", "rest position x0", neutral=None))

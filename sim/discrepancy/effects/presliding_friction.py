@@ -16,6 +16,8 @@ STARTS = (0.2, 0.5, 2.0, 5.0)  # x the current σ0
 
 class PreslidingFriction(Effect):
     name = "presliding_friction"
+    revealing_experiment = "locked_pi_current"
+    needs_fine_motor_encoder = True
     description = "elastic (presliding) displacement before breakaway"
     params = (Param("presliding_stiffness", "N·m/rad", "N/m", "LuGre bristle stiffness σ0", neutral=None,
                     fields={"testbed": "friction.presliding_stiffness_nm_per_rad"}, valid=(0.0, 1e9)),)

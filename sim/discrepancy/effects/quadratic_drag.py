@@ -18,6 +18,7 @@ def velocity_squared(v: np.ndarray) -> np.ndarray:
 
 class QuadraticDrag(Effect):
     name = "quadratic_drag"
+    revealing_experiment = "free"
     description = "effort growing with the square of the velocity (fluid drag, fans)"
     params = (Param("drag_coefficient", "N·m·s²/rad²", "N·s²/m²", "drag coefficient c of c·v·|v|"),)
     signature = "velocity squared (v|v|)"

@@ -13,6 +13,7 @@ SYNTHETIC_ERROR = (0.02, 0.05)  # |g - 1|
 
 class SensorGain(Effect):
     name = "sensor_gain"
+    revealing_experiment = "locked"
     description = "torque sensor scale error"
     params = (Param("sensor_gain", "1", "1", "scale of the torque sensor g", neutral=1.0, valid=BOUNDS, firm=True),)
     rigs = frozenset({TESTBED})

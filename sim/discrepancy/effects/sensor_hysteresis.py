@@ -36,6 +36,7 @@ def play_operator(x: np.ndarray, half_width: float) -> np.ndarray:
 
 class SensorHysteresis(Effect):
     name = "sensor_hysteresis"
+    revealing_experiment = "locked"
     description = "torque sensor reading that depends on the loading direction"
     params = (Param("sensor_hysteresis", "N·m", "N·m", "loop half-height H (positive: reads high while loading up)"),
               Param("sensor_hysteresis_span", "N·m", "N·m", "torque change that saturates the loop S", neutral=None,

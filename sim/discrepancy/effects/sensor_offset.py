@@ -18,6 +18,7 @@ def needs_reference(model) -> str | None:
 
 class SensorOffset(Effect):
     name = "sensor_offset"
+    revealing_experiment = "locked"
     description = "torque sensor zero error"
     params = (Param("sensor_offset", "N·m", "N·m", "zero error of the torque sensor b"),)
     rigs = frozenset({TESTBED})

@@ -13,6 +13,7 @@ SYNTHETIC_RANGE = (3e-3, 1e-2)  # [N·m/K]
 
 class SensorThermalDrift(Effect):
     name = "sensor_thermal_drift"
+    revealing_experiment = "locked"
     description = "torque sensor zero drifting with board temperature"
     params = (Param("sensor_tempco", "N·m/K", "N·m/K", "zero drift per kelvin from the calibration temperature"),)
     rigs = frozenset({TESTBED})

@@ -33,6 +33,7 @@ def stated(theta: dict[str, float]) -> bool:
 
 class StribeckFriction(Effect):
     name = "stribeck_friction"
+    revealing_experiment = "free"
     description = "friction falling from the static to the Coulomb level with velocity"
     params = (
         Param("breakaway", "N·m", "N", "static (breakaway) friction level F_s", neutral=None,

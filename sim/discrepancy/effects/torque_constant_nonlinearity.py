@@ -26,6 +26,7 @@ def rolled_off(u: np.ndarray | float, rolloff: float, peak: float) -> np.ndarray
 
 class TorqueConstantNonlinearity(Effect):
     name = "torque_constant_nonlinearity"
+    revealing_experiment = "locked"
     description = "torque per command falling at high current (magnetic saturation)"
     params = (Param("torque_rolloff", "1", "1", "fraction of the command lost at peak effort", valid=BOUNDS,
                     firm=True),)
@@ -44,7 +45,9 @@ class TorqueConstantNonlinearity(Effect):
             return "the rig states no peak effort (peak_effort) to refer the roll-off to"
         reach = float(np.abs(model.data.u_full).max())
         if reach < MIN_PEAK_FRACTION * peak:
-            return f"commands reach {reach:.3g}, below {100 * MIN_PEAK_FRACTION:g} % of peak effort {peak:g}"
+            unit = "N" if model.rig.joint == "slide" else "N·m"
+            return (f"commands reach {reach:.3g} {unit}, below {100 * MIN_PEAK_FRACTION:g} % of the peak effort "
+                    f"{peak:.3g} {unit}")
         return None
 
     def command(self, u, theta, peak):

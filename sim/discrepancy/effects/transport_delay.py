@@ -5,7 +5,6 @@ from __future__ import annotations
 import numpy as np
 
 from sim.discrepancy.effects.base import Effect, Param
-from sim.discrepancy.signals import derivative
 
 MAX_DELAY_S = 0.05  # [s] the largest dead time fitted (the testbed's motor.command_delay_s allows up to 50 ms)
 MAX_DELAY_OF_DURATION = 0.05  # and at most 5 % of the log
@@ -15,6 +14,7 @@ EXTRA_DELAY_S = (1.5e-3, 5.5e-3)  # synthetic draws: [s] added to the rig's dead
 
 class TransportDelay(Effect):
     name = "transport_delay"
+    revealing_experiment = "free"
     description = "dead time between the logged command and the torque"
     params = (Param("delay", "s", "s", "command-to-effort dead time",
                     fields={"testbed": "motor.command_delay_s", "hinge": "delay_s", "slide": "delay_s"},
@@ -36,7 +36,7 @@ class TransportDelay(Effect):
         return None
 
     def signature_signal(self, model, theta):
-        return model.data.filt(derivative(model.data.u_full, model.data.dt))
+        return model.data.filt(model.data.derivative(model.data.u_full))
 
     def draw(self, rig, rng):
         base = rig.params.motor.command_delay_s if rig.model == "testbed" else rig.rigid.get("delay", 0.0)

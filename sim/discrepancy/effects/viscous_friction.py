@@ -10,6 +10,7 @@ MAX_FORCE_OF_EFFORT = 10.0  # fit bound: σ2·v_max up to ten times the largest 
 
 class ViscousFriction(Effect):
     name = "viscous_friction"
+    revealing_experiment = "free"
     description = "friction proportional to velocity (grease, bearings)"
     params = (Param("viscous", "N·m·s/rad", "N·s/m", "viscous friction coefficient σ2",
                     fields={"testbed": "friction.viscous_nms_per_rad", "hinge": "friction.viscous",

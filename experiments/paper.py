@@ -2,12 +2,13 @@
 
     python -m experiments.paper [--seed N] [--duration S] [--json PATH] [--plot DIR] [--params TOML]
 
-Runs the calibration and thermal experiments (``experiments.calibration``, ``experiments.thermal``), the step and disturbance tests, the sine and square tests (both feedbacks) and the admittance
-pushes, then prints the table (``ratio`` = sim / paper), the paper's qualitative behaviours with whether the
-simulation shows them, and with ``--plot DIR`` writes ``DIR/paper_report.md`` with every figure. ``--json``
-writes ``{"rows": [{"table", "quantity", "unit", "paper", "sim", "ratio"}], "behaviours": [...]}``; rows of
-alternative readings of the paper's definitions also carry ``"reading": "alternative"`` and a ``"reason"``: they
-are printed in a group of their own and never counted in the "N of M within a factor" figures.
+Runs the calibration and thermal experiments (``experiments.calibration``, ``experiments.thermal``), the step and
+disturbance tests, the sine and square tests (both feedbacks) and the admittance pushes, then prints the table
+(``ratio`` = sim / paper), the paper's qualitative behaviours with whether the simulation shows them, and with
+``--plot DIR`` writes ``DIR/paper_report.md`` with every figure. ``--json`` writes ``{"rows": [{"table", "quantity",
+"unit", "paper", "sim", "ratio"}], "behaviours": [...]}``; rows of alternative readings of the paper's definitions
+also carry ``"reading": "alternative"`` and a ``"reason"``: they are printed in a group of their own and never
+counted in the "N of M within a factor" figures.
 About 1-2 min with the full-length tests.
 """
 
@@ -168,13 +169,16 @@ def _cell(text: str) -> str:
 
 def markdown_report(result: PaperResult, directory: Path) -> str:
     """The report: the table, the behaviours and every figure (paths relative to ``directory``)."""
+    if result.duration_s is None:
+        length = "full-length tests."
+    elif result.duration_s < SHORTEST_FULL_TEST_S:
+        length = (f"**short run ({result.duration_s:g} s per test): a check of the command line, not comparable "
+                  f"with the paper's figures.**")
+    else:
+        length = (f"**tests run at a set length (--duration {result.duration_s:g} s) instead of the paper "
+                  f"protocol's: not comparable with the paper's figures.**")
     lines = ["# torquebed: the paper's figures beside the simulation", "",
-             f"{result.counts_text()} (ratio = sim / paper); seed {result.seed}, " + ("full-length tests." if result.duration_s is None else
-                                        f"**short run ({result.duration_s:g} s per test): a check of the command "
-                                        f"line, not comparable with the paper's figures.**"
-                                        if result.duration_s < SHORTEST_FULL_TEST_S else
-                                        f"**tests run at a set length (--duration {result.duration_s:g} s) instead "
-                                        f"of the paper protocol's: not comparable with the paper's figures.**"), "",
+             f"{result.counts_text()} (ratio = sim / paper); seed {result.seed}, {length}", "",
              "| table | quantity | unit | paper | sim | ratio |", "|---|---|---|---|---|---|"]
 
     def num(x):

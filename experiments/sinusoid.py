@@ -4,21 +4,21 @@ Table VII, Fig. 12).
     python -m experiments.sinusoid [--feedback {current,sensor,both}] [--seed N] [--duration S]
                                    [--json PATH] [--plot DIR] [--params TOML]
 
-Protocol: the tests follow the disturbance test in the paper's order, so each starts from the state that
-test leaves: the motor had pushed the lever against the load cell at ``PRECONDITION_NM`` (0.5 N·m), the
-command is ramped back to zero, and the gear stops where its friction holds it, with some torque still locked
-in the flexure and the load cell (``PRECONDITION_HOLD_S`` pushing, ``PRECONDITION_RAMP_S`` ramping down,
-``PRECONDITION_RELEASE_S`` released; open loop, not evaluated). Then the reference under closed-loop
-control: 0.05 N·m sine at 0.2 Hz, 0.1 N·m square wave at 1 Hz, 10 N·m sine at 0.2 Hz (``WAVEFORMS`` of
-:mod:`sim.protocols`), each starting at zero phase, for ``WARMUP_PERIODS`` period (not evaluated: the figures
-describe the periodic test, not its start from that preload) and then ``TEST_DURATION_S``, evaluated. RMS and peak errors of the load-cell reading
-against the reference over the evaluated window, with the peak error defined in :mod:`controllers.tracking`
-(|max y - max r|, the crest reading of the paper's "peak error"; the two-sided reading, crest or trough, is
-reported beside it as an alternative). The one-sided actuation of the paper's
-low-torque current-feedback tests is measured as the share of the load-cell torque's impulse that is
-positive: ``positive_share`` = sum(max(y, 0)) / sum(|y|) (0.5 for a symmetric output, 1 for an output that
-never goes negative), beside how much torque is produced at all: ``output_level`` = mean |y| / mean |r| (about 1
-when tracking; near 0 for a gear that never breaks free, whose sign share is then only its noise and offset).
+Protocol: the tests follow the disturbance test in the paper's order, so each starts from the state that test
+leaves: the motor had pushed the lever against the load cell at ``PRECONDITION_NM`` (0.5 N·m), the command is ramped
+back to zero, and the gear stops where its friction holds it, with some torque still locked in the flexure and the
+load cell (``PRECONDITION_HOLD_S`` pushing, ``PRECONDITION_RAMP_S`` ramping down, ``PRECONDITION_RELEASE_S``
+released; open loop, not evaluated). Then the reference under closed-loop control: 0.05 N·m sine at 0.2 Hz, 0.1 N·m
+square wave at 1 Hz, 10 N·m sine at 0.2 Hz (``WAVEFORMS`` of :mod:`sim.protocols`), each starting at zero phase, for
+``WARMUP_PERIODS`` period (not evaluated: the figures describe the periodic test, not its start from that preload)
+and then ``TEST_DURATION_S``, evaluated. RMS and peak errors of the load-cell reading against the reference over the
+evaluated window, with the peak error defined in :mod:`controllers.tracking` (|max y - max r|, the crest reading of
+the paper's "peak error"; the two-sided reading, crest or trough, is reported beside it as an alternative). The
+one-sided actuation of the paper's low-torque current-feedback tests is measured as the share of the load-cell
+torque's impulse that is positive: ``positive_share`` = sum(max(y, 0)) / sum(|y|) (0.5 for a symmetric output, 1 for
+an output that never goes negative), beside how much torque is produced at all: ``output_level`` = mean |y| / mean
+|r| (about 1 when tracking; near 0 for a gear that never breaks free, whose sign share is then only its noise and
+offset).
 """
 
 from __future__ import annotations

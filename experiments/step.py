@@ -268,7 +268,7 @@ def plot_step(result: StepResult, directory: Path) -> Path:
     rows = -(-len(names) // columns)
     fig, axes = plt.subplots(rows, columns, figsize=(6.0 * columns, 3.8 * rows), squeeze=False)
     colours = {"current": "tab:green", "sensor": "tab:gray"}
-    for ax, name in zip(axes.flat, names):
+    for ax, name in zip(axes.flat, names, strict=False):  # a grid cell may be left empty
         twin = ax.twinx() if name == "disturbance" else None  # the hand's torque, on its own scale
         for c in (c for c in result.cases if c.name == name):
             log = c.log

@@ -79,6 +79,8 @@ PLATEAU_SETTLED_FRACTION = 0.5
 def settled_plateaus(ambient_c: np.ndarray, settled_fraction: float = PLATEAU_SETTLED_FRACTION) -> np.ndarray:
     """Plateau label of each sample of a chamber record (0, 1, ... per set point, from the air temperature
     ``ambient_c`` [°C]); -1 on the first ``1 - settled_fraction`` of each hold, where the board still settles."""
+    if not 0.0 < settled_fraction <= 1.0:  # also refuses nan
+        raise ValueError(f"settled_fraction = {settled_fraction!r}: valid range (0, 1]")
     ambient = np.asarray(ambient_c, dtype=float)
     label = np.cumsum(np.concatenate([[0], np.diff(ambient) != 0.0]))
     out = label.copy()

@@ -4,7 +4,9 @@
 
 Simulates the calibration rig (test weights to ±25 N·m five times each way, the T_x/T_y moment protocol),
 fits LS and the paper's QP, evaluates the QP calibration on a second session of the same protocols, and
-prints every figure beside the paper's. Figures: ``calibration_channels.png`` (paper Fig. 6),
+prints every figure beside the paper's, then the alternative readings of Tables III-IV the paper's text allows
+(:data:`ALTERNATIVE_FIGURES`: the 50 N·m span as full scale, the max error on hold means, the crosstalk relative to
+the applied moment) as rows of their own. Figures: ``calibration_channels.png`` (paper Fig. 6),
 ``calibration_nonlinearity.png`` (Fig. 7: nonlinearity and hysteresis, the curves whose peaks are Table III's),
 ``calibration_crosstalk_noise.png`` (Fig. 8(b)-(f): crosstalk, channel voltages under T_x / T_y, LS and QP noise).
 """

@@ -11,7 +11,8 @@ The one-hour "RMS error" of Table V is each instrument's reading against the app
 10 N·m of a weight): the paper lists one for the MINI85 itself, which an error against the MINI85 could not
 have. The MINI85's row is simulated (its noise and quantisation); the DYJN-104 is not modelled, so its row
 has no simulated value. If the rational fit is rejected for a unit (a pole inside the chamber's range), the
-compensation uses the best-fitting of the other models and the output says so.
+compensation uses the best-fitting of the other models and the output says so. The zero drift per 1 °C is also
+reported under the other readings the paper's sentence allows (:data:`ALTERNATIVE_FIGURES`), as rows of their own.
 """
 
 from __future__ import annotations

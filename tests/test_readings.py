@@ -12,9 +12,9 @@ def test_a_sensor_feedback_step_with_its_transient_has_the_larger_rms_error():
     """Over the whole hold from the step on, the rise of a 0.1 N·m step counts: its RMS error is above that of
     the settled window (the primary reading), which it contains."""
     case = run_step_case(TestbedParams(), "sensor", 0.1, seed=0, hold_s=0.4)
-    assert case.error_with_transient is not None
-    assert case.error_with_transient.rms_nm > 1.5 * case.error.rms_nm
-    assert case.to_dict()["error_with_transient"]["rms_nm"] == case.error_with_transient.rms_nm
+    assert case.error_whole_record is not None
+    assert case.error_whole_record.rms_nm > 1.5 * case.error.rms_nm
+    assert case.to_dict()["error_whole_record"]["rms_nm"] == case.error_whole_record.rms_nm
 
 
 def test_settled_plateaus_label_the_second_half_of_each_hold():

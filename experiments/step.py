@@ -123,7 +123,7 @@ class StepCase:
                 "disturbance_at_loss_nm": self.disturbance_at_loss_nm,
                 "disturbance_max_nm": self.disturbance_max_nm, "window_s": list(self.window_s),
                 "error_whole_record": (self.error_whole_record.to_dict()
-                                         if self.error_whole_record is not None else None)}
+                                       if self.error_whole_record is not None else None)}
 
 
 @dataclass(frozen=True)

@@ -57,6 +57,11 @@ class TrackingError:
     mean_reference_nm: float
 
     @property
+    def two_sided_peak_nm(self) -> float:
+        """max(peak_nm, trough_nm) [N·m]: the two-sided reading of the paper's "peak error" (module docstring)."""
+        return max(self.peak_nm, self.trough_nm)
+
+    @property
     def reached_fraction(self) -> float:
         """Mean output over mean reference [-] (the paper's "% of the expected value" of a step)."""
         return self.mean_output_nm / self.mean_reference_nm if self.mean_reference_nm else float("nan")

@@ -331,15 +331,46 @@ def outside_band(ratio: float | None, band: float = TARGET_RATIO) -> bool:
     return ratio is not None and (ratio <= 0.0 or abs(math.log(ratio)) > math.log(band))
 
 
-def paper_row(table: str, quantity: str, unit: str, paper: float | None, sim: float | None) -> dict[str, Any]:
-    """One row of a paper-vs-simulation table; ratio = sim / paper (None if either is missing or paper is 0)."""
+PRIMARY, ALTERNATIVE = "primary", "alternative"  # the readings of a paper figure a row compares under
+
+
+def paper_row(table: str, quantity: str, unit: str, paper: float | None, sim: float | None, *,
+              reading: str = PRIMARY, reason: str | None = None) -> dict[str, Any]:
+    """One row of a paper-vs-simulation table; ratio = sim / paper (None if either is missing or paper is 0).
+
+    ``reading``: ``"primary"`` (the paper's stated definition; the row has no ``reading`` key) or
+    ``"alternative"`` (another reading the paper's text allows, its ``paper`` value converted to it where the
+    conversion is defined; the row carries ``"reading": "alternative"`` and ``reason``, one sentence saying
+    why the paper can be read so).
+    """
+    if reading not in (PRIMARY, ALTERNATIVE):
+        raise ValueError(f"reading = {reading!r}: valid values are {PRIMARY!r}, {ALTERNATIVE!r}")
+    if (reading == ALTERNATIVE) != bool(reason):
+        raise ValueError("reason: an alternative reading needs one (a sentence saying why), a primary row has none")
     ratio = sim / paper if (paper and sim is not None and math.isfinite(sim)) else None
-    return {"table": table, "quantity": quantity, "unit": unit, "paper": paper, "sim": sim, "ratio": ratio}
+    row = {"table": table, "quantity": quantity, "unit": unit, "paper": paper, "sim": sim, "ratio": ratio}
+    return row if reading == PRIMARY else {**row, "reading": ALTERNATIVE, "reason": reason}
+
+
+def is_primary(row: dict[str, Any]) -> bool:
+    """Whether a paper row compares under the paper's stated definition (it has no ``"reading": "alternative"``)."""
+    return row.get("reading", PRIMARY) != ALTERNATIVE
 
 
 def format_rows(title: str, rows: list[dict[str, Any]], band: float | None = TARGET_RATIO) -> str:
     """Plain-text table of paper rows: quantity, paper, simulation, ratio; a ratio outside [1/band, band] is
-    marked (``band=None``: no marks)."""
+    marked (``band=None``: no marks). Rows of alternative readings (:func:`is_primary` false) follow in a table
+    of their own, each with its reason."""
+    primary = [r for r in rows if is_primary(r)]
+    alternatives = [r for r in rows if not is_primary(r)]
+    text = _table(title, primary, band)
+    if alternatives:
+        text += "\n\n" + _table("Alternative readings of the paper's definitions (beside the table, never counted "
+                                 "in it; the paper value converted to the reading)", alternatives, band)
+    return text
+
+
+def _table(title: str, rows: list[dict[str, Any]], band: float | None) -> str:
     width = max([len(r["quantity"]) for r in rows] + [8])
     table_width = max([len(r["table"]) for r in rows] + [8])
     lines = [title, f"{'table':{table_width}s} {'quantity':{width}s} {'unit':5s} {'paper':>9s} {'sim':>9s} "
@@ -353,4 +384,6 @@ def format_rows(title: str, rows: list[dict[str, Any]], band: float | None = TAR
         off = band is not None and outside_band(r["ratio"], band)
         lines.append(f"{r['table']:{table_width}s} {r['quantity']:{width}s} {r['unit']:5s} {num(r['paper'])} "
                      f"{num(r['sim'])} {ratio}{f'  <- outside a factor {band:g}' if off else ''}")
+        if not is_primary(r):
+            lines.append(f"{'':{table_width}s}   why: {r['reason']}")
     return "\n".join(lines)

@@ -65,6 +65,7 @@ from experiments.common import (
     add_rerun_args,
     check_output_paths,
     cli_parser,
+    is_primary,
     outside_band,
     record_rerun,
     rerun_requested,
@@ -94,15 +95,16 @@ def candidate_params(values: tuple[float, ...]) -> tuple[TestbedParams, dict]:
 
 def run_candidate(params: TestbedParams, seed: int = 0,
                   duration_s: float | None = None) -> tuple[list[dict], dict[str, RunLog]]:
-    """The Table VI-VII rows (and the step/disturbance text rows) for one parameter set, and the run logs they
-    come from (run name -> RunLog, named as experiments.step and experiments.sinusoid record them).
+    """The Table VI-VII rows (and the step/disturbance text rows) for one parameter set, primary readings only
+    (:func:`experiments.common.is_primary`), and the run logs they come from (run name -> RunLog, named as
+    experiments.step and experiments.sinusoid record them).
 
     ``duration_s`` shortens every test [s] (a quick check; the paper's figures need the full length).
     """
     step = run_step(params, seed=seed, duration_s=duration_s)
     sine = run_sinusoid(params, seed=seed, duration_s=duration_s)
     logs = {**step.logs(), **sine.logs()}
-    return step.rows() + sine.rows(), logs
+    return [r for r in step.rows() + sine.rows() if is_primary(r)], logs
 
 
 def score(rows: list[dict]) -> tuple[float, float]:

@@ -1,7 +1,9 @@
 """Every command of ``python -m experiments.<name>``, and the paper's experiments behind one interface.
 
 A paper experiment is run as ``EXPERIMENTS[name].run(params, seed, duration_s, controller)`` and returns a
-:class:`Result`: ``rows()`` (each figure beside the paper's: ``{table, quantity, unit, paper, sim, ratio}``),
+:class:`Result`: ``rows()`` (each figure beside the paper's: ``{table, quantity, unit, paper, sim, ratio}``, then
+the alternative readings of the paper's definitions, which also carry ``reading`` and ``reason``:
+:func:`experiments.common.paper_row`),
 ``to_dict()`` (JSON-ready) and ``plot(directory)`` (the figures written, as paths; a run draws nothing).
 ``experiments.paper`` runs them in this order; the README's command table and the command-line tests list
 :data:`COMMANDS`.

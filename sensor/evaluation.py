@@ -53,7 +53,9 @@ class SensorEvaluation:
     ``figures`` maps a name to ``(value, unit)``; names: ``max_error_pct_fs``, ``rms_error_nm``,
     ``nonlinearity_pct_fs``, ``hysteresis_pct_fs``, ``repeatability_pct_fs``, ``crosstalk_tx_pct_fs``,
     ``crosstalk_ty_pct_fs``, ``ls_std_nm``, ``ls_resolution_3sigma_nm``, ``qp_std_nm``,
-    ``qp_resolution_3sigma_nm``, ``qp_improvement``.
+    ``qp_resolution_3sigma_nm``, ``qp_improvement``; for the alternative readings of the paper's figures
+    ``max_error_level_means_pct_fs`` (max error on the mean of each test-weight hold), ``nonlinearity_nm``,
+    ``hysteresis_nm``, ``repeatability_nm``, ``crosstalk_tx_nm``, ``crosstalk_ty_nm`` (those figures in N·m).
     """
 
     ls: Calibration
@@ -78,12 +80,14 @@ class SensorEvaluation:
 class MeasuredCycles:
     """The evaluation session's samples that Table III's figures use: the five cycles each way (the preload
     cycles only set the slip state). ``reference_nm`` (MINI85) and ``output_nm`` (the calibration) [N·m],
-    ``direction`` (+1 loading, -1 unloading, :func:`sensor.metrics.reference_direction`), ``cycle`` labels."""
+    ``direction`` (+1 loading, -1 unloading, :func:`sensor.metrics.reference_direction`), ``cycle`` labels,
+    ``hold`` labels of the test-weight holds (:func:`sensor.metrics.hold_labels`, -1 in transitions)."""
 
     reference_nm: np.ndarray
     output_nm: np.ndarray
     direction: np.ndarray
     cycle: np.ndarray
+    hold: np.ndarray
 
 
 def measured_cycles(evaluation_record: RigRecord, calibration: Calibration) -> MeasuredCycles:
@@ -91,7 +95,8 @@ def measured_cycles(evaluation_record: RigRecord, calibration: Calibration) -> M
     rec = evaluation_record
     measured = rec.schedule.cycle != PRELOAD_LABEL
     return MeasuredCycles(rec.tau_reference_nm[measured], calibration.predict(rec.voltages_v)[measured],
-                          metrics.reference_direction(rec.tau_reference_nm)[measured], rec.schedule.cycle[measured])
+                          metrics.reference_direction(rec.tau_reference_nm)[measured], rec.schedule.cycle[measured],
+                          metrics.hold_labels(rec.schedule.level_nm)[measured])
 
 
 # The paper's gamma criterion is RMSE^2 + lambda Var(tau_hat on I_0) with lambda left open ("e.g.").
@@ -176,16 +181,16 @@ def calibrate(torque_record: RigRecord, moment_records: list[RigRecord], *, fs_n
 
 
 def _repeatability_per_series(ref: np.ndarray, out: np.ndarray, cycle: np.ndarray, direction: np.ndarray,
-                              fs_nm: float) -> float:
-    """Repeatability [% FS] within each series of five same-sign cycles, the worse of the two series.
+                              fs_nm: float) -> metrics.RepeatabilityResult:
+    """Repeatability within each series of five same-sign cycles: the worse of the two series' results.
 
     The repetitions of the paper's test are the five loadings in one direction; comparing a positive cycle's
     return to zero with a negative cycle's departure from it (they share the bins around 0 N·m) would count
     hysteresis as non-repeatability.
     """
     series = [(cycle >= 0) & (cycle < CALIBRATION_CYCLES), cycle >= CALIBRATION_CYCLES]
-    return max(metrics.repeatability(ref[m], out[m], cycle[m], direction[m], fs_nm=fs_nm).repeatability_pct_fs
-               for m in series)
+    return max((metrics.repeatability(ref[m], out[m], cycle[m], direction[m], fs_nm=fs_nm) for m in series),
+               key=lambda r: r.max_spread_nm)
 
 
 def resolution_gain(params: TestbedParams | None = None, seed: int = 0) -> tuple[float, float]:
@@ -282,6 +287,9 @@ def evaluate_sensor(params: TestbedParams | None = None, seed: int = 0) -> Senso
     m = measured_cycles(ev, qp)
     ref, out, direction = m.reference_nm, m.output_nm, m.direction
     err = metrics.error_metrics(out, ref, fs_nm=fs)
+    nonlinearity = metrics.nonlinearity(ref, out, direction, fs_nm=fs)
+    hysteresis = metrics.hysteresis(ref, out, direction, fs_nm=fs)
+    repeatability = _repeatability_per_series(ref, out, m.cycle, direction, fs)
     xt = {axis: run(f"crosstalk_{axis}", lambda dt, a=axis: crosstalk_schedule(dt, a)) for axis in ("x", "y")}
     cross = {axis: metrics.crosstalk(qp.predict(r.voltages_v), tare_mask=r.schedule.branch == 0, fs_nm=fs)
              for axis, r in xt.items()}
@@ -291,10 +299,9 @@ def evaluate_sensor(params: TestbedParams | None = None, seed: int = 0) -> Senso
     figures = {
         "max_error_pct_fs": (err.max_error_pct_fs, "% FS"),
         "rms_error_nm": (err.rms_error_nm, "N·m"),
-        "nonlinearity_pct_fs": (metrics.nonlinearity(ref, out, direction, fs_nm=fs).nonlinearity_pct_fs, "% FS"),
-        "hysteresis_pct_fs": (metrics.hysteresis(ref, out, direction, fs_nm=fs).hysteresis_pct_fs, "% FS"),
-        "repeatability_pct_fs": (_repeatability_per_series(ref, out, m.cycle, direction, fs),
-                                 "% FS"),
+        "nonlinearity_pct_fs": (nonlinearity.nonlinearity_pct_fs, "% FS"),
+        "hysteresis_pct_fs": (hysteresis.hysteresis_pct_fs, "% FS"),
+        "repeatability_pct_fs": (repeatability.repeatability_pct_fs, "% FS"),
         "crosstalk_tx_pct_fs": (cross["x"].crosstalk_pct_fs, "% FS"),
         "crosstalk_ty_pct_fs": (cross["y"].crosstalk_pct_fs, "% FS"),
         "ls_std_nm": (res_ls.std_nm, "N·m"),
@@ -302,5 +309,13 @@ def evaluate_sensor(params: TestbedParams | None = None, seed: int = 0) -> Senso
         "qp_std_nm": (res_qp.std_nm, "N·m"),
         "qp_resolution_3sigma_nm": (res_qp.resolution_3sigma_nm, "N·m"),
         "qp_improvement": (improvement_ratio(res_ls.std_nm, res_qp.std_nm), "1"),
+        # the same figures in N·m, and the max error on the holds' means: the paper's alternative readings
+        "max_error_level_means_pct_fs": (metrics.error_metrics(out, ref, fs_nm=fs, groups=m.hold).max_error_pct_fs,
+                                         "% FS"),
+        "nonlinearity_nm": (nonlinearity.max_deviation_nm, "N·m"),
+        "hysteresis_nm": (hysteresis.max_difference_nm, "N·m"),
+        "repeatability_nm": (repeatability.max_spread_nm, "N·m"),
+        "crosstalk_tx_nm": (cross["x"].max_apparent_torque_nm, "N·m"),
+        "crosstalk_ty_nm": (cross["y"].max_apparent_torque_nm, "N·m"),
     }
     return SensorEvaluation(ls, qp, selection, figures, cal_rec, ev, xt, res_rec)

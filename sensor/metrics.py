@@ -48,6 +48,12 @@ What the paper leaves open, and the choice made here
 * **Crosstalk.** The apparent T_z output during the moment test, relative to the applied T_z
   (zero unless ``tau_z_ref`` is given); no tare unless ``tare_mask`` selects unloaded samples whose
   mean is removed first. Normalised by FS, not by the applied moment (both are reported).
+* **Full scale.** The paper's FS sentence names 80 N m, but its Eq. 14 calls FS "the full-scale span", which
+  for the +-25 N m calibration is 50 N m; every % FS metric takes ``fs_nm`` for that reading.
+* **Max error.** On raw samples by default; ``groups`` (:func:`hold_labels`) takes it on the mean of each
+  test-weight hold instead.
+* **Zero drift per 1 K.** The largest slope of the fitted drift by default; ``slope="span"`` its average slope,
+  :func:`plateau_drift_per_kelvin_pct_fs` the slope between the chamber's plateaus.
 * **Resolution.** Sample standard deviation (``ddof=1``) of the raw record, no detrending or
   filtering (the paper: "10 s of data acquired at 1 kHz without any filtering").
 """
@@ -74,6 +80,7 @@ __all__ = [
     "CrosstalkResult",
     "ResolutionResult",
     "error_metrics",
+    "hold_labels",
     "max_error_pct_fs",
     "rms_error_nm",
     "reference_direction",
@@ -85,6 +92,7 @@ __all__ = [
     "resolution_3sigma",
     "drift_rms_nm",
     "zero_drift_per_kelvin_pct_fs",
+    "plateau_drift_per_kelvin_pct_fs",
 ]
 
 _FS_NM = PhotoReflectorParams().full_scale_nm
@@ -166,14 +174,40 @@ class ErrorMetrics:
     n_samples: int
 
 
-def error_metrics(tau_hat: np.ndarray, tau_ref: np.ndarray, *, fs_nm: float = _FS_NM) -> ErrorMetrics:
-    """Max error [N m, % FS] and RMS error [N m] of ``tau_hat`` against ``tau_ref`` (both (N,))."""
+def error_metrics(tau_hat: np.ndarray, tau_ref: np.ndarray, *, fs_nm: float = _FS_NM,
+                  groups: np.ndarray | None = None) -> ErrorMetrics:
+    """Max error [N m, % FS] and RMS error [N m] of ``tau_hat`` against ``tau_ref`` (both (N,)).
+
+    ``groups`` (int, shape (N,)), if given: the errors are first averaged over the samples sharing a label >= 0
+    (e.g. each hold of a test weight, :func:`hold_labels`; negative labels are left out), and the max and RMS
+    are taken over those means; ``n_samples`` is then the number of groups.
+    """
     t, r = _pair(tau_hat, tau_ref)
     fs = _fs(fs_nm)
     e = t - r
+    if groups is not None:
+        g = np.asarray(groups)
+        if g.shape != e.shape or not np.issubdtype(g.dtype, np.integer):
+            raise ValueError(f"groups must be an integer array of shape {e.shape}; got dtype {g.dtype} and shape "
+                             f"{g.shape}")
+        if not np.any(g >= 0):
+            raise ValueError("groups has no label >= 0: no samples to average")
+        _, index = np.unique(g[g >= 0], return_inverse=True)
+        e = np.bincount(index, weights=e[g >= 0]) / np.bincount(index)
     emax = float(np.max(np.abs(e)))
     return ErrorMetrics(max_error_nm=emax, max_error_pct_fs=_PCT * emax / fs,
                         rms_error_nm=math.sqrt(float(np.mean(e * e))), fs_nm=fs, n_samples=e.size)
+
+
+def hold_labels(level_nm: np.ndarray) -> np.ndarray:
+    """Label of the hold each sample belongs to: consecutive samples at one finite level share a label (0, 1, ...
+    in time order); samples at NaN (transitions) get -1. ``level_nm``: the schedule's nominal level [N m]."""
+    level = np.asarray(level_nm, dtype=float)
+    if level.ndim != 1:
+        raise ValueError(f"level_nm must have shape (N,); got shape {level.shape}")
+    held = np.isfinite(level)
+    start = held & np.concatenate([[True], ~held[:-1] | (level[1:] != level[:-1])])
+    return np.where(held, np.cumsum(start) - 1, -1)
 
 
 def max_error_pct_fs(tau_hat: np.ndarray, tau_ref: np.ndarray, *, fs_nm: float = _FS_NM) -> float:
@@ -674,13 +708,57 @@ def drift_rms_nm(tau_hat: np.ndarray, tau_ref: np.ndarray) -> float:
     return rms_error_nm(tau_hat, tau_ref)
 
 
-def zero_drift_per_kelvin_pct_fs(zero_drift_nm, t_low_c: float, t_high_c: float, *, fs_nm: float = _FS_NM) -> float:
-    """The paper's "a maximum temperature change of 1 °C resulted in about 0.014 % FS": the largest change of the
-    fitted zero drift over 1 °C within the tests' temperature range [% FS].
+ZERO_DRIFT_SLOPES = ("largest", "span")
 
-    ``zero_drift_nm`` maps temperatures [°C] (an array) to the zero drift [N m]; its slope is taken by finite
-    differences on :data:`ZERO_DRIFT_GRID_POINTS` temperatures from ``t_low_c`` to ``t_high_c`` (at least 1 °C).
+
+def zero_drift_per_kelvin_pct_fs(zero_drift_nm, t_low_c: float, t_high_c: float, *, fs_nm: float = _FS_NM,
+                                 slope: str = "largest") -> float:
+    """The paper's "a maximum temperature change of 1 °C resulted in about 0.014 % FS": the change of the fitted
+    zero drift over 1 °C within a temperature range [% FS].
+
+    ``zero_drift_nm`` maps temperatures [°C] (an array) to the zero drift [N m], evaluated on
+    :data:`ZERO_DRIFT_GRID_POINTS` temperatures from ``t_low_c`` to ``t_high_c`` (at least 1 °C). ``slope``:
+    ``"largest"``, the largest |slope| by finite differences there; ``"span"``, the drift's span (max - min)
+    there over the range's width (an average slope).
     """
+    if slope not in ZERO_DRIFT_SLOPES:
+        raise ValueError(f"slope = {slope!r}: valid values are {', '.join(map(repr, ZERO_DRIFT_SLOPES))}")
     grid = np.linspace(t_low_c, max(t_high_c, t_low_c + 1.0), ZERO_DRIFT_GRID_POINTS)
-    slope = np.max(np.abs(np.gradient(zero_drift_nm(grid), grid)))
-    return _PCT * slope * 1.0 / _fs(fs_nm)
+    drift = zero_drift_nm(grid)
+    if slope == "largest":
+        per_k = np.max(np.abs(np.gradient(drift, grid)))
+    else:
+        per_k = (np.max(drift) - np.min(drift)) / (grid[-1] - grid[0])
+    return _PCT * per_k * 1.0 / _fs(fs_nm)
+
+
+def plateau_drift_per_kelvin_pct_fs(temperature_c: np.ndarray, zero_nm: np.ndarray, plateau: np.ndarray, *,
+                                    fs_nm: float = _FS_NM) -> float:
+    """Zero drift per 1 °C between temperature plateaus [% FS]: the largest |difference of the mean zero output
+    over the difference of the mean temperature| between plateaus adjacent in label order.
+
+    Parameters
+    ----------
+    temperature_c, zero_nm : numpy.ndarray, shape (N,)
+        Temperature [°C] and the zero output [N m] of a record at no load.
+    plateau : numpy.ndarray of int, shape (N,)
+        Plateau of each sample (>= 0; negative labels, e.g. samples still settling, are left out); at least two.
+    """
+    temp, zero = _vector("temperature_c", temperature_c), _vector("zero_nm", zero_nm)
+    if zero.size != temp.size:
+        raise ValueError(f"zero_nm must have shape ({temp.size},); got shape {zero.shape}")
+    p = np.asarray(plateau)
+    if p.shape != temp.shape or not np.issubdtype(p.dtype, np.integer):
+        raise ValueError(f"plateau must be an integer array of shape {temp.shape}; got dtype {p.dtype} and shape "
+                         f"{p.shape}")
+    used = p >= 0
+    labels, index = np.unique(p[used], return_inverse=True)
+    if labels.size < 2:
+        raise ValueError(f"plateau needs at least 2 labels >= 0; got {labels.size}")
+    count = np.bincount(index)
+    mean_t = np.bincount(index, weights=temp[used]) / count
+    mean_zero = np.bincount(index, weights=zero[used]) / count
+    dt = np.diff(mean_t)
+    if np.any(dt == 0.0):
+        raise ValueError("two adjacent plateaus have the same mean temperature: no slope between them")
+    return _PCT * float(np.max(np.abs(np.diff(mean_zero) / dt))) / _fs(fs_nm)

@@ -43,3 +43,12 @@ def test_mismatched_arrays_are_refused():
     """Output and reference must have the same length."""
     with pytest.raises(ValueError, match="equal-length"):
         tracking_error(np.zeros(3), np.zeros(4))
+
+
+def test_two_sided_peak_is_the_larger_miss_of_crest_and_trough():
+    """Output crest 0.06 against 0.05 (miss 0.01), trough -0.02 against -0.05 (miss 0.03): two-sided 0.03."""
+    r = np.array([0.0, 0.05, 0.0, -0.05])
+    y = np.array([0.0, 0.06, 0.0, -0.02])
+    e = tracking_error(y, r)
+    assert (e.peak_nm, e.trough_nm, e.two_sided_peak_nm) == (pytest.approx(0.01), pytest.approx(0.03),
+                                                             pytest.approx(0.03))

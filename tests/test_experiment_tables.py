@@ -4,8 +4,10 @@ import argparse
 
 import pytest
 
-from experiments.common import format_rows, paper_row, run_seconds, seed_arg
-from experiments.paper import ACTUATION_LEVEL, actuation
+from experiments.common import ALTERNATIVE, format_rows, is_primary, paper_row, run_seconds, seed_arg
+from experiments.paper import ACTUATION_LEVEL, PaperResult, actuation, markdown_report
+
+PRIMARY_KEYS = {"table", "quantity", "unit", "paper", "sim", "ratio"}
 
 
 def test_format_rows_marks_the_ratios_outside_the_band_and_only_those():
@@ -18,6 +20,52 @@ def test_format_rows_marks_the_ratios_outside_the_band_and_only_those():
     assert marked == ["low", "high"]
     assert format_rows("t", rows) == format_rows("t", rows, band=1.5)
     assert "outside" not in format_rows("t", rows, band=None)
+
+
+def test_an_alternative_row_carries_its_reading_and_reason_and_a_primary_row_neither():
+    primary = paper_row("III", "q", "% FS", 0.1, 0.2)
+    alternative = paper_row("III", "q, other reading", "N·m", 0.05, 0.1, reading=ALTERNATIVE, reason="Why.")
+    assert set(primary) == PRIMARY_KEYS and is_primary(primary)
+    assert alternative == {"table": "III", "quantity": "q, other reading", "unit": "N·m", "paper": 0.05, "sim": 0.1,
+                           "ratio": pytest.approx(2.0), "reading": "alternative", "reason": "Why."}
+    assert not is_primary(alternative)
+
+
+@pytest.mark.parametrize("kwargs, match", [({"reading": "alternative"}, "an alternative reading needs one"),
+                                           ({"reason": "Why."}, "a primary row has none"),
+                                           ({"reading": "other", "reason": "Why."}, "valid values are")])
+def test_paper_row_refuses_a_reading_without_reason_or_a_reason_without_reading(kwargs, match):
+    with pytest.raises(ValueError, match=match):
+        paper_row("III", "q", "N·m", 1.0, 1.0, **kwargs)
+
+
+def _mixed_rows():
+    """Two primary rows (ratios 1.0 and 2.0) and two alternatives (ratios 1.0 and 3.0)."""
+    return [paper_row("VI", "p in", "N·m", 1.0, 1.0), paper_row("VI", "p out", "N·m", 1.0, 2.0),
+            paper_row("VI", "a in", "N·m", 1.0, 1.0, reading=ALTERNATIVE, reason="Reason A."),
+            paper_row("VI", "a out", "N·m", 1.0, 3.0, reading=ALTERNATIVE, reason="Reason B.")]
+
+
+def test_format_rows_prints_the_alternatives_after_the_primary_rows_each_with_its_reason():
+    text = format_rows("t", _mixed_rows())
+    primary, alternatives = text.split("Alternative readings")
+    assert "p out" in primary and "a in" not in primary and "a out" not in primary
+    assert "why: Reason A." in alternatives and "why: Reason B." in alternatives and "p in" not in alternatives
+    assert "Alternative readings" not in format_rows("t", _mixed_rows()[:2])
+
+
+def test_paper_counts_and_report_leave_the_alternatives_out_of_the_counts(tmp_path):
+    """1 of 2 primary rows is within 1.5 (the alternatives, 1 of 2, are not counted); the JSON keeps all four
+    rows; the report puts the alternatives under their own heading with their reasons."""
+    result = PaperResult(_mixed_rows(), [], seed=0)
+    assert result.within_target() == (1, 2) and result.within_target(1.25) == (1, 2)
+    assert "1 of 2 figures within a factor 1.5 (1 within 1.25)" in result.counts_text()
+    assert "primary readings only" in result.counts_text()
+    assert result.to_dict()["rows"] == _mixed_rows()
+    report = markdown_report(result, tmp_path)
+    table, alternatives = report.split("## Alternative readings")
+    assert "p out" in table and "a out" not in table
+    assert "a out" in alternatives and "Reason B." in alternatives
 
 
 @pytest.mark.parametrize("share, level, expected", [

@@ -3,6 +3,7 @@ usage error before anything runs."""
 
 import argparse
 import json
+import math
 import os
 import re
 import subprocess
@@ -11,6 +12,7 @@ from pathlib import Path
 
 import pytest
 
+from experiments.common import is_primary
 from experiments.registry import COMMANDS, EXPERIMENTS
 from sim.params import TestbedParams
 
@@ -33,8 +35,12 @@ def test_torque_experiment_short_mode_prints_paper_beside_sim_and_writes_json_an
     assert "paper" in result.stdout and "ratio" in result.stdout
     assert "%" in result.stderr  # progress indication
     rows = json.loads(out.read_text())["rows"]
-    assert rows and all(set(r) == {"table", "quantity", "unit", "paper", "sim", "ratio"} for r in rows)
+    primary = [r for r in rows if is_primary(r)]
+    assert primary and all(set(r) == {"table", "quantity", "unit", "paper", "sim", "ratio"} for r in primary)
     assert {r["quantity"].split(" feedback")[0].rsplit(", ", 1)[1] for r in rows} == {"current", "sensor"}
+    alternatives = rows[len(primary):]  # after the primary rows, one per test (4 steps / 3 waveforms) and feedback
+    assert len(alternatives) == (8 if module == "experiments.step" else 6) and all(r["reading"] == "alternative" and r["reason"] for r in alternatives)
+    assert "Alternative readings" in result.stdout
     assert (tmp_path / figure).stat().st_size > 10_000
 
 
@@ -296,6 +302,23 @@ def test_identify_defaults_says_a_short_run_is_short_before_its_ranking(monkeypa
     identify_defaults.main(["--duration", "0.05"])
     out = capsys.readouterr().out
     assert out.index("SHORT RUN (--duration 0.05 s)") < out.index("rank") < out.index("best:")
+
+
+def test_identify_defaults_scores_only_the_primary_rows(monkeypatch):
+    """The candidates' rows and scores leave the alternative readings out: a far-off alternative changes nothing."""
+    from types import SimpleNamespace
+
+    from experiments import identify_defaults
+    from experiments.common import ALTERNATIVE, paper_row
+
+    primary = paper_row("VI", "q", "N·m", 1.0, 1.1)
+    rows = [primary, paper_row("VI", "q, whole", "N·m", 1.0, 9.0, reading=ALTERNATIVE, reason="Why.")]
+    fake = SimpleNamespace(rows=lambda: rows, logs=lambda: {})
+    monkeypatch.setattr(identify_defaults, "run_step", lambda *a, **k: fake)
+    monkeypatch.setattr(identify_defaults, "run_sinusoid", lambda *a, **k: fake)
+    candidate_rows, _ = identify_defaults.run_candidate(TestbedParams())
+    assert candidate_rows == [primary, primary]
+    assert identify_defaults.score(candidate_rows)[1] == pytest.approx(math.log(1.1))
 
 
 def test_a_gear_ratio_the_defaults_cannot_simulate_names_it_the_file_and_the_values_to_set(tmp_path, capsys):

@@ -190,3 +190,48 @@ def test_drift_rms_is_the_rms_of_the_reading_against_the_applied_torque():
 
     assert drift_rms_nm(np.array([10.03, 9.96, 10.0, 10.01]), np.full(4, 10.0)) == pytest.approx(
         np.sqrt((0.03**2 + 0.04**2 + 0.0 + 0.01**2) / 4))
+
+
+def test_error_metrics_on_groups_take_the_max_and_rms_of_each_groups_mean_error():
+    """Errors [0.1, 0.3 | -0.2 | 5.0 left out (label -1)]: group means 0.2 and -0.2 N m, so max 0.2 N m and
+    RMS 0.2 N m over 2 groups, where the raw samples give max 5 N m."""
+    ref = np.zeros(4)
+    hat = np.array([0.1, 0.3, -0.2, 5.0])
+    res = m.error_metrics(hat, ref, groups=np.array([0, 0, 1, -1]))
+    assert (res.max_error_nm, res.rms_error_nm, res.n_samples) == (pytest.approx(0.2), pytest.approx(0.2), 2)
+    assert res.max_error_pct_fs == pytest.approx(100 * 0.2 / FS)
+    assert m.error_metrics(hat, ref).max_error_nm == pytest.approx(5.0)
+    with pytest.raises(ValueError, match="groups must be an integer array of shape"):
+        m.error_metrics(hat, ref, groups=np.zeros(3, dtype=int))
+    with pytest.raises(ValueError, match="groups has no label >= 0"):
+        m.error_metrics(hat, ref, groups=np.full(4, -1))
+
+
+def test_hold_labels_number_each_run_of_one_finite_level_in_time_order():
+    """Transitions (NaN) are -1; a level change without a transition starts a new hold."""
+    level = np.array([0.0, 0.0, np.nan, 5.0, 5.0, np.nan, np.nan, 5.0, 10.0, np.nan])
+    assert m.hold_labels(level).tolist() == [0, 0, -1, 1, 1, -1, -1, 2, 3, -1]
+
+
+def test_zero_drift_span_reading_is_the_average_slope_over_the_range():
+    """A quadratic drift 0.001 (T - 25)^2 over 20-30 °C spans 0.025 N m over 10 K: 0.0025 N m/K, half its
+    largest slope (0.01 N m/K at either end)."""
+    def drift(t):
+        return 0.001 * (t - 25.0) ** 2
+
+    span = m.zero_drift_per_kelvin_pct_fs(drift, 20.0, 30.0, slope="span")
+    assert span == pytest.approx(100.0 * 0.0025 / FS, rel=1e-3)
+    assert m.zero_drift_per_kelvin_pct_fs(drift, 20.0, 30.0) == pytest.approx(100.0 * 0.01 / FS, rel=0.01)
+    with pytest.raises(ValueError, match="slope = 'mean': valid values are 'largest', 'span'"):
+        m.zero_drift_per_kelvin_pct_fs(drift, 20.0, 30.0, slope="mean")
+
+
+def test_plateau_drift_is_the_largest_slope_between_adjacent_plateaus():
+    """Plateau means (0 °C, 0), (10 °C, 0.01 N m), (20 °C, 0.05 N m): slopes 1 and 4 mN m/K, so 4 mN m/K
+    = 0.005 % of 80 N m; unlabelled samples (-1) are left out."""
+    temp = np.array([-5.0, 0.0, 0.0, 10.0, 10.0, 20.0])
+    zero = np.array([9.0, -0.001, 0.001, 0.01, 0.01, 0.05])
+    plateau = np.array([-1, 0, 0, 1, 1, 2])
+    assert m.plateau_drift_per_kelvin_pct_fs(temp, zero, plateau) == pytest.approx(0.005)
+    with pytest.raises(ValueError, match="plateau needs at least 2 labels"):
+        m.plateau_drift_per_kelvin_pct_fs(temp, zero, np.array([-1, 0, 0, 0, 0, 0]))

@@ -132,11 +132,31 @@ def _rows(path):
 
 
 def test_calibration_cli_prints_the_table_and_writes_json_and_figures(tmp_path, capsys):
-    """One row per line of the paper's table, PNG figures written."""
+    """One row per line of the paper's table, then one per alternative reading with its reason and the paper
+    value converted to it (% of the 50 N·m span, of the 25 N·m moment), PNG figures written."""
     assert calibration_cli.main(["--json", str(tmp_path / "c.json"), "--plot", str(tmp_path)]) == 0
-    assert len(_rows(tmp_path / "c.json")) == len(calibration_cli.PAPER_FIGURES)
-    assert "QP improvement" in capsys.readouterr().out
+    rows = _rows(tmp_path / "c.json")
+    primary, alternatives = _split(rows, len(calibration_cli.PAPER_FIGURES))
+    assert len(alternatives) == len(calibration_cli.ALTERNATIVE_FIGURES) == 6
+    paper = {r["quantity"].split(",")[0]: r["paper"] for r in alternatives}
+    assert paper == pytest.approx({"max error": 0.0830, "nonlinearity": 0.0555, "hysteresis": 0.0695,
+                                   "repeatability": 0.04245, "crosstalk T_x": 0.037, "crosstalk T_y": 0.0315})
+    sim = {r["quantity"]: r["sim"] for r in primary}
+    for r in alternatives[1:4]:  # the same deviation in N·m: the 80 N·m % FS figure x 0.8
+        assert r["sim"] == pytest.approx(sim[r["quantity"].split(",")[0]] * 0.8)
+    assert alternatives[0]["sim"] < sim["max error"]  # hold means average the samples' noise away
+    out = capsys.readouterr().out
+    assert "QP improvement" in out and "why: Eq. 14 calls FS 'the full-scale span'" in out
     assert len(list(tmp_path.glob("*.png"))) == 3
+
+
+def _split(rows, n_primary):
+    """The primary rows (the first ``n_primary``, without a reading) and the alternatives after them (each with
+    its reason)."""
+    primary, alternatives = rows[:n_primary], rows[n_primary:]
+    assert all("reading" not in r and "reason" not in r for r in primary)
+    assert all(r["reading"] == "alternative" and r["reason"].endswith(".") for r in alternatives)
+    return primary, alternatives
 
 
 def test_a_unit_whose_rational_fit_has_a_pole_is_compensated_with_the_best_other_model():
@@ -155,7 +175,12 @@ def test_thermal_cli_prints_the_table_and_writes_json_and_a_figure(tmp_path, cap
     """One row per figure of Table V (the MINI85's simulated, the DYJN-104's not) and the drift per degree,
     the drift models compared, a PNG written."""
     assert thermal_cli.main(["--json", str(tmp_path / "t.json"), "--plot", str(tmp_path)]) == 0
-    assert len(_rows(tmp_path / "t.json")) == len(thermal_cli.PAPER_FIGURES)
+    primary, alternatives = _split(_rows(tmp_path / "t.json"), len(thermal_cli.PAPER_FIGURES))
+    assert len(alternatives) == 3 and {r["paper"] for r in alternatives} == {0.014}
+    largest_tests, (largest_chamber, plateaus, span) = primary[-1]["sim"], (r["sim"] for r in alternatives)
+    assert largest_chamber >= largest_tests  # the chamber's range holds the one-hour tests'
+    assert span <= largest_chamber  # an average slope is at most the largest
+    assert plateaus > 0.0
     out = capsys.readouterr().out
     assert "rational" in out and "poly4" in out and "gaussian" in out
     assert (tmp_path / "thermal_drift.png").exists()

@@ -14,7 +14,8 @@ and τ_meas the sensor reading (or the driver's current-based estimate with ``--
 Tasks (:data:`TUNE_TASKS`): the paper's 0.1 N·m step, 0.05 N·m and 10 N·m sines at 0.2 Hz, each one episode
 of ``--duration`` seconds (default 3 s) from rest with a fixed seed per task (the same sensor and load-cell
 noise for every candidate: common random numbers). E_t(g) is the RMS of load-cell torque minus reference
-over the episode from the reference's first non-zero tick (the step; the sine's first tick), the error the experiments report.
+over the episode from the reference's first non-zero tick (the step; the sine's first tick), the error the
+experiments report.
 
 Optimisation problem::
 
@@ -254,7 +255,7 @@ def tune(params: TestbedParams | None = None, feedback: str = "sensor", damping:
         return [e.rms_nm for e in errors(_scaled(g, gain_margin))] if gain_margin > 1.0 else []
 
     def admissible(margin: list[float]) -> bool:
-        return all(m <= p for m, p in zip(margin, paper_rms))
+        return all(m <= p for m, p in zip(margin, paper_rms, strict=True))
     count = [1]
     if progress:
         print(f"tune: evaluation 1/{max_evaluations}: paper gains, RMS " +

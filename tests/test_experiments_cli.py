@@ -39,7 +39,8 @@ def test_torque_experiment_short_mode_prints_paper_beside_sim_and_writes_json_an
     assert primary and all(set(r) == {"table", "quantity", "unit", "paper", "sim", "ratio"} for r in primary)
     assert {r["quantity"].split(" feedback")[0].rsplit(", ", 1)[1] for r in rows} == {"current", "sensor"}
     alternatives = rows[len(primary):]  # after the primary rows, one per test (4 steps / 3 waveforms) and feedback
-    assert len(alternatives) == (8 if module == "experiments.step" else 6) and all(r["reading"] == "alternative" and r["reason"] for r in alternatives)
+    assert len(alternatives) == (8 if module == "experiments.step" else 6)
+    assert all(r["reading"] == "alternative" and r["reason"] for r in alternatives)
     assert "Alternative readings" in result.stdout
     assert (tmp_path / figure).stat().st_size > 10_000
 

@@ -160,7 +160,7 @@ def test_paper_resolution_figures_are_three_sigma_of_the_stds():
         x = rng.standard_normal(10_000)
         x = (x - x.mean()) / x.std(ddof=1) * std               # exactly this sample std
         assert m.resolution_3sigma(x).resolution_3sigma_nm == pytest.approx(res3, abs=5e-5)
-    assert 0.0480 / 0.0224 == pytest.approx(2.14, abs=0.005)
+    assert pytest.approx(2.14, abs=0.005) == 0.0480 / 0.0224
 
 
 def test_pure_backlash_loop_has_full_width_hysteresis_and_no_nonlinearity():

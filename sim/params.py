@@ -32,10 +32,18 @@ def range_text(low: float, high: float, *, low_open: bool = False) -> str:
 
 
 def quantity(default: float, unit: str, source: str, low: float = -INF, high: float = INF,
-             *, low_open: bool = False) -> Any:
-    """A dataclass field with unit, source and valid range ``[low, high]`` (``(low, high]`` if low_open)."""
+             *, low_open: bool = False, bound: tuple[float, float] | None = None, bound_source: str = "") -> Any:
+    """A dataclass field with unit, source and valid range ``[low, high]`` (``(low, high]`` if low_open).
+
+    ``bound`` is the interval ``(lo, hi)`` the value's source allows (a datasheet spread, a paper's "≈", a
+    plausible range for an assumption), with ``bound_source`` saying where it comes from; the valid range is a
+    sanity limit, the bound what an identification may search."""
+    if (bound is None) != (not bound_source):
+        raise ValueError(f"quantity(source={source[:40]!r}...): bound and bound_source come together")
+    if bound is not None and not bound[0] <= bound[1]:
+        raise ValueError(f"quantity(source={source[:40]!r}...): bound {bound} has lo > hi")
     return field(default=default, metadata={"unit": unit, "source": source, "low": low, "high": high,
-                                            "low_open": low_open})
+                                            "low_open": low_open, "bound": bound, "bound_source": bound_source})
 
 
 def choice(default: str, choices: tuple[str, ...], source: str) -> Any:
@@ -373,6 +381,31 @@ def field_range(params: TestbedParams, group: str, name: str) -> tuple[float, fl
     if f.metadata["low_open"]:
         low = math.nextafter(low, math.inf)
     return low, high
+
+
+def _bounds() -> dict[str, tuple[float, float]]:
+    """``group.field`` -> source bound, for every field that has one, in declaration order."""
+    out = {}
+    for group in dataclasses.fields(TestbedParams):
+        for f in dataclasses.fields(group.default_factory):
+            if f.metadata.get("bound") is not None:
+                out[f"{group.name}.{f.name}"] = f.metadata["bound"]
+    return out
+
+
+def bounded_fields() -> tuple[str, ...]:
+    """Every ``group.field`` whose source gives a bound, in declaration order."""
+    return tuple(_bounds())
+
+
+def source_bound(path: str) -> tuple[float, float]:
+    """The bound ``(lo, hi)`` that the source of ``path`` ("group.field") allows, in the field's unit.
+
+    Raises KeyError naming the path and the bounded fields if the field has no bound (or does not exist)."""
+    bounds = _bounds()
+    if path not in bounds:
+        raise KeyError(f"{path!r} has no source bound; bounded fields: {', '.join(bounds) or 'none'}")
+    return bounds[path]
 
 
 def _validate_group(name: str, obj: Any) -> None:

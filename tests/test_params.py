@@ -85,3 +85,21 @@ def test_parameters_are_frozen():
     p = TestbedParams()
     with pytest.raises(dataclasses.FrozenInstanceError):
         p.motor.gear_ratio = 9.0
+
+
+def test_source_bound_of_a_field_without_one_is_a_key_error_naming_it():
+    """Asking for the bound of an unbounded or unknown field names the path and lists the bounded fields."""
+    from sim.params import bounded_fields, source_bound
+    for path in ("simulation.control_period_s", "friction.no_such_field"):
+        with pytest.raises(KeyError, match=path.replace(".", r"\.")) as info:
+            source_bound(path)
+        assert all(name in str(info.value) for name in bounded_fields())
+
+
+def test_a_bound_without_its_source_is_refused():
+    """quantity() takes bound and bound_source together, lo <= hi."""
+    from sim.params import quantity
+    with pytest.raises(ValueError, match="bound_source"):
+        quantity(1.0, "m", "assumed: x", bound=(0.5, 2.0))
+    with pytest.raises(ValueError, match="lo > hi"):
+        quantity(1.0, "m", "assumed: x", bound=(2.0, 0.5), bound_source="assumed: y")

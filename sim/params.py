@@ -188,9 +188,11 @@ class FlexureParams:
         "for a 96 x 12 mm body fits aluminium, not steel", 1e9, 500e9,
         bound=(68.9e9, 71.7e9), bound_source="assumed: aluminium (paper Table II mass fits it): 6061-T6 68.9 GPa to "
         "7075-T6 71.7 GPa (ASM data)")
-    poisson_ratio: float = quantity(0.33, "1", "assumed: aluminium 7075-T6 (ASM data)", 0.0, 0.5,
+    poisson_ratio: float = quantity(
+        0.33, "1", "assumed: aluminium 7075-T6 (ASM data)", 0.0, 0.5,
         bound=(0.33, 0.33), bound_source="assumed: aluminium, 6061-T6 and 7075-T6 both 0.33 (ASM data)")
-    density_kg_m3: float = quantity(2810.0, "kg/m³", "assumed: aluminium 7075-T6 (ASM data)", 100.0, 25000.0,
+    density_kg_m3: float = quantity(
+        2810.0, "kg/m³", "assumed: aluminium 7075-T6 (ASM data)", 100.0, 25000.0,
         bound=(2700.0, 2810.0), bound_source="assumed: aluminium (paper Table II mass fits it): 6061-T6 2700 to "
         "7075-T6 2810 kg/m³ (ASM data)")
     shear_correction: float = quantity(5.0 / 6.0, "1", "paper Sec. II: κ = 5/6, rectangular section",
@@ -235,7 +237,8 @@ class LoadCellParams:
         "this spring in series with the lever's bending", 0.0, 0.01, low_open=True,
         bound=(2.0e-4, 5.0e-4), bound_source="assumed: typical S-beam deflection at rated capacity, 0.2-0.5 mm (the "
         "SBA-50L sheet is not read)")
-    damping_ratio: float = quantity(0.02, "1", "assumed: light damping of the tip support", 0.0, 1.0,
+    damping_ratio: float = quantity(
+        0.02, "1", "assumed: light damping of the tip support", 0.0, 1.0,
         bound=(0.005, 0.05), bound_source="assumed: 0.5-5 % of critical, bolted aluminium assemblies with their "
         "joints")
     reading_noise_n: float = quantity(
@@ -244,13 +247,20 @@ class LoadCellParams:
         "added to the logged force only (model README, Derivations)", 0.0, 50.0,
         bound=(0.0, 0.026), bound_source="paper Table VI: sensor-feedback step RMS ≤ 0.0026 N·m over the 0.1 m lever "
         "bounds the reading noise by 0.026 N (the loop adds ≥ 0)")
+    amplifier_bandwidth_hz: float = quantity(
+        1000.0, "Hz", "assumed: −3 dB frequency of the load cell's amplifier, a first-order low-pass on the force "
+        "signal logged at the control rate; the paper names no amplifier for the SBA-50L (sim.lowpass)",
+        0.0, 1.0e6, low_open=True,
+        bound=(10.0, 5000.0), bound_source="assumed: ≥ 10 Hz, as its lag alone on Table VII's 10 N·m 0.2 Hz sine "
+        "stays ≤ 0.152 N·m RMS; ≤ 5 kHz, an analog strain-gauge amplifier (1-10 kHz)")
 
 
 @dataclass(frozen=True)
 class ThermalParams:
     """Lumped two-node thermal network (sensor board, motor winding) in still air."""
 
-    ambient_c: float = quantity(25.0, "°C", "assumed: laboratory", -40.0, 85.0,
+    ambient_c: float = quantity(
+        25.0, "°C", "assumed: laboratory", -40.0, 85.0,
         bound=(20.0, 30.0), bound_source="assumed: an air-conditioned laboratory")
     board_heat_capacity_j_per_k: float = quantity(
         110.0, "J/K", "assumed: 114.5 g aluminium body (paper Table II) at 900 J/(kg·K) plus the PCB",
@@ -431,7 +441,7 @@ class TestbedParams:
             _validate_group(group.name, getattr(self, group.name))
         _validate_cross(self)
 
-    def replace(self, **groups: dict[str, Any]) -> "TestbedParams":
+    def replace(self, **groups: dict[str, Any]) -> TestbedParams:
         """A copy with fields overridden, e.g. ``p.replace(friction={"breakaway_torque_nm": 0.2})``."""
         return from_dict(groups, base=self)
 
@@ -459,13 +469,13 @@ def field_range(params: TestbedParams, group: str, name: str) -> tuple[float, fl
     return low, high
 
 
-def _bounds() -> dict[str, tuple[float, float]]:
-    """``group.field`` -> source bound, for every field that has one, in declaration order."""
+def _bounds() -> dict[str, tuple[tuple[float, float], str]]:
+    """``group.field`` -> (source bound, its source), for every field that has one, in declaration order."""
     out = {}
     for group in dataclasses.fields(TestbedParams):
         for f in dataclasses.fields(group.default_factory):
             if f.metadata.get("bound") is not None:
-                out[f"{group.name}.{f.name}"] = f.metadata["bound"]
+                out[f"{group.name}.{f.name}"] = (f.metadata["bound"], f.metadata["bound_source"])
     return out
 
 
@@ -474,14 +484,23 @@ def bounded_fields() -> tuple[str, ...]:
     return tuple(_bounds())
 
 
-def source_bound(path: str) -> tuple[float, float]:
-    """The bound ``(lo, hi)`` that the source of ``path`` ("group.field") allows, in the field's unit.
-
-    Raises KeyError naming the path and the bounded fields if the field has no bound (or does not exist)."""
+def _bound_entry(path: str) -> tuple[tuple[float, float], str]:
     bounds = _bounds()
     if path not in bounds:
         raise KeyError(f"{path!r} has no source bound; bounded fields: {', '.join(bounds) or 'none'}")
     return bounds[path]
+
+
+def source_bound(path: str) -> tuple[float, float]:
+    """The bound ``(lo, hi)`` that the source of ``path`` ("group.field") allows, in the field's unit.
+
+    Raises KeyError naming the path and the bounded fields if the field has no bound (or does not exist)."""
+    return _bound_entry(path)[0]
+
+
+def bound_source(path: str) -> str:
+    """Where the bound of ``path`` ("group.field") comes from; KeyError as :func:`source_bound`."""
+    return _bound_entry(path)[1]
 
 
 def _validate_group(name: str, obj: Any) -> None:

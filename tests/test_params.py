@@ -6,7 +6,7 @@ import math
 import pytest
 
 from models.gim8108_testbed.build import build_xml
-from sim.params import ParameterError, TestbedParams, bounded_fields, load_params, quantity, source_bound
+from sim.params import ParameterError, TestbedParams, bound_source, bounded_fields, load_params, quantity, source_bound
 
 
 def test_every_parameter_has_unit_source_and_a_default_inside_its_range():
@@ -53,6 +53,8 @@ def test_toml_override_applies_and_leaves_the_file_untouched(tmp_path):
     ("[friction]\ncoulomb_torque_nm = 0.2\n", "must not exceed friction.breakaway_torque_nm"),
     ("[flexure]\nbeam_length_m = 0.04\n", "r_i + l must stay inside"),
     ("motor = 3\n", "[motor] must be a table"),
+    ("[loadcell]\namplifier_bandwidth_hz = 0.0\n",
+     "loadcell.amplifier_bandwidth_hz = 0.0 Hz is out of its valid range (0, 1e+06]"),
 ])
 def test_invalid_toml_is_rejected_naming_the_field(tmp_path, text, fragment):
     """Unknown keys, wrong types and out-of-range values name the field, value and valid range."""
@@ -91,9 +93,12 @@ def test_parameters_are_frozen():
 def test_source_bound_of_a_field_without_one_is_a_key_error_naming_it():
     """Asking for the bound of an unbounded or unknown field names the path and lists the bounded fields."""
     for path in ("simulation.control_period_s", "friction.no_such_field"):
-        with pytest.raises(KeyError, match=path.replace(".", r"\.")) as info:
-            source_bound(path)
-        assert all(name in str(info.value) for name in bounded_fields())
+        for lookup in (source_bound, bound_source):
+            with pytest.raises(KeyError, match=path.replace(".", r"\.")) as info:
+                lookup(path)
+            assert all(name in str(info.value) for name in bounded_fields())
+    assert source_bound("friction.coulomb_torque_nm") == (0.065, 0.13)
+    assert bound_source("friction.coulomb_torque_nm").startswith("assumed: ")
 
 
 def test_a_bound_without_its_source_is_refused():

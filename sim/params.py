@@ -223,8 +223,13 @@ class LeverParams:
     length_m: float = quantity(0.1, "m", "paper Sec. V: 0.1 m lever arm", 0.0, 10.0, low_open=True)
     width_m: float = quantity(0.02, "m", "assumed: aluminium bar section", 0.0, 1.0, low_open=True)
     thickness_m: float = quantity(0.006, "m", "assumed: aluminium bar section", 0.0, 1.0, low_open=True)
-    density_kg_m3: float = quantity(2700.0, "kg/m³", "assumed: aluminium 6061-T6 (ASM data)", 100.0, 25000.0)
-    youngs_modulus_pa: float = quantity(68.9e9, "Pa", "assumed: aluminium 6061-T6 (ASM data)", 1e9, 500e9)
+    density_kg_m3: float = quantity(
+        2700.0, "kg/m³", "assumed: aluminium 6061-T6 (ASM data)", 100.0, 25000.0,
+        bound=(2700.0, 2810.0), bound_source="assumed: an aluminium bar, 6061-T6 2700 to 7075-T6 2810 kg/m³ (ASM data)")
+    youngs_modulus_pa: float = quantity(
+        68.9e9, "Pa", "assumed: aluminium 6061-T6 (ASM data)", 1e9, 500e9,
+        bound=(68.9e9, 71.7e9), bound_source="assumed: an aluminium bar, 6061-T6 68.9 GPa to 7075-T6 71.7 GPa "
+        "(ASM data)")
 
 
 @dataclass(frozen=True)
@@ -372,7 +377,9 @@ class PhotoReflectorParams:
         "phototransistor's gain; the TCRT1000 temperature curve is not read")
     optical_tempco_spread_per_k: float = quantity(
         2.0e-4, "1/K", "assumed: channel-to-channel spread of that coefficient", 0.0, 0.1)
-    reference_temperature_c: float = quantity(25.0, "°C", "assumed: calibration temperature", -40.0, 85.0)
+    reference_temperature_c: float = quantity(
+        25.0, "°C", "assumed: calibration temperature", -40.0, 85.0,
+        bound=(20.0, 30.0), bound_source="assumed: calibrated in an air-conditioned laboratory")
     bandwidth_hz: float = quantity(5000.0, "Hz", "paper Table II: rise-time-limited bandwidth ~5 kHz",
                                    0.0, INF, low_open=True)
     adc_bits: int = quantity(16, "1", "paper Sec. II: 16-bit ADC", 8, 32)
@@ -385,7 +392,9 @@ class PhotoReflectorParams:
     reference_resolution_nm: float = quantity(
         7.0 / 748.0, "N·m", "paper Sec. IV-A: ATI MINI85 T_z resolution 7/748 N·m", 0.0, 1.0, low_open=True)
     reference_noise_nm: float = quantity(
-        4.7e-3, "N·m", "assumed: MINI85 noise std of half its resolution", 0.0, 1.0)
+        4.7e-3, "N·m", "assumed: MINI85 noise std of half its resolution", 0.0, 1.0,
+        bound=(0.0, 7.0 / 748.0), bound_source="assumed: the MINI85's noise std is at most its T_z resolution of "
+        "7/748 N·m (paper, calibration)")
     reference_gain_error: float = quantity(
         0.0, "1", "assumed: ATI MINI85 T_z gain error g, the reading is (1 + g)·τ + noise, quantised; 0 = an "
         "exact reference, because the unit's actual error is unknown. Range from paper Sec. IV-A: 1 % FS "

@@ -7,8 +7,8 @@ What it fits, to what
 ---------------------
 The unknowns that shape the motor experiments and that the paper does not state are the gear's sliding
 (Coulomb) friction level, its load-dependent loss (1 - efficiency), the motor's torque-per-ampere droop at
-high current (the "nonlinearity" of the current-based estimate, paper Sec. V-A) and the backlash width. The
-breakaway (0.13 N·m, paper Sec. V) is fixed. For every candidate of a grid over those four the script simulates the
+high current (the "nonlinearity" of the current-based estimate, paper Sec. IV-A) and the backlash width. The
+breakaway (0.13 N·m, paper Sec. IV) is fixed. For every candidate of a grid over those four the script simulates the
 step, disturbance, sine and square tests of Tables VI-VII under both feedbacks (``experiments.step``,
 ``experiments.sinusoid``, the same code the CLIs run) and scores the candidate by the RMS over the 20
 figures of the natural-log ratio ln(sim / paper) (a factor 1.5 is 0.405). The grid is coarse on purpose:

@@ -93,8 +93,8 @@ def test_a_fresh_interpreter_makes_the_env_after_import_torquebed(code):
 
 def test_the_simulation_packages_register_nothing_and_load_no_gymnasium():
     """``import sim`` and the packages below the environments leave Gymnasium unloaded and the id unregistered."""
-    assert _fresh("import sys; import sim, sim.params, sim.plant, models, sensor.readout, sim.run, controllers.feedback; "
-                  "print('gymnasium' in sys.modules)") == "False"
+    assert _fresh("import sys; import sim, sim.params, sim.plant, models, sensor.readout, sim.run, "
+                  "controllers.feedback; print('gymnasium' in sys.modules)") == "False"
     assert _fresh(f"import gymnasium, sim, sim.plant; print('{ENV_ID}' in gymnasium.registry)") == "False"
 
 
@@ -267,7 +267,8 @@ def test_reward_is_zero_at_rest_on_a_zero_reference_without_noise():
 
 
 def test_one_step_is_one_tick_of_the_experiments_torque_loop():
-    """A PI on the env's sensor observation reproduces the experiments' loop (sim.run.run_loop): its load-cell torque exactly (noise off)."""
+    """A PI on the env's sensor observation reproduces the experiments' loop (sim.run.run_loop): its load-cell
+    torque exactly (noise off)."""
     env = make(feedback_noise=False, episode_duration_s=0.3)
     obs, _ = env.reset(seed=0, options={"task": "step", "amplitude_nm": 0.1})
     pi = PITorqueController(output_limit_nm=command_limit_nm(TestbedParams().motor))

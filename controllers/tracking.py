@@ -94,4 +94,5 @@ def run_tracking(params: TestbedParams, plant: Plant, controller: Controller, fe
                     progress_label=label,
                     meta={"feedback": feedback, "seed": seed,
                           "loadcell_reading_noise_n": params.loadcell.reading_noise_n,
+                          "loadcell_amplifier_bandwidth_hz": params.loadcell.amplifier_bandwidth_hz,
                           "torque_saturation_per_nm": params.motor.torque_saturation_per_nm, **(meta or {})})

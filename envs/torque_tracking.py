@@ -71,9 +71,10 @@ class TorqueTrackingEnv(gym.Env):
     The load-cell torque is not observed (it is what the reward grades); it is in ``info``.
 
     ## Rewards
-    Per step k, with y_k the load-cell torque at the end of the tick (force x lever length, with the load
-    cell's reading noise ``loadcell.reading_noise_n`` unless ``feedback_noise=False``; in the 'free' fixture,
-    which has no load cell, the true flexure torque), r_k the reference of the tick, u_k the clipped command,
+    Per step k, with y_k the load-cell torque at the end of the tick (force x lever length through the
+    amplifier's low-pass ``loadcell.amplifier_bandwidth_hz``, with the load cell's reading noise
+    ``loadcell.reading_noise_n`` unless ``feedback_noise=False``; in the 'free' fixture, which has no load
+    cell, the true flexure torque), r_k the reference of the tick, u_k the clipped command,
     s the episode's reward scale (largest |reference|, at least 0.01 N·m) and u_max the driver's command
     limit (the action box)::
 

@@ -208,6 +208,7 @@ class TorqueTrackingVectorEnv(VectorEnv):
                 plants[i] = Plant(draw.params, t.fixture, nsample=self._nsample)
             self._sensor.set_unit(i, draw.sensor_params(t.feedback_noise), draw.sensor_seed)
             self._loadcell_noise.set_rng(i, draw.loadcell_rng)
+            self._loadcell.restart(i)
             self._command_limit[i] = draw.command_limit_nm
             self._scale[i] = draw.reference.scale_nm
             self._references[i] = draw.reference.values_nm

@@ -6,7 +6,7 @@ A :class:`Space` maps x in [0, 1]^n to parameter values (log-scaled where hi/lo 
 :class:`SearchStore` it appends every evaluation to ``evals.jsonl`` and the strategy's state to ``state.pkl``
 after each generation: a run resumed from that directory continues from the last finished generation, reuses
 the evaluations already made and ends where the uninterrupted run ends. The strategy draws its samples from its
-own saved random state, so nothing the objective draws changes them.
+own generator (saved with it), so nothing the objective draws changes them.
 """
 
 from __future__ import annotations
@@ -218,7 +218,7 @@ def minimise(evaluate: Callable[[list[np.ndarray]], list[Evaluation]], x0: Seque
     x0 : sequence of float
         Start, in [0, 1]^n.
     seed : int
-        The strategy's seed (>= 1; cma takes 0 as "from the clock").
+        The seed of the strategy's sampling.
     budget : int
         Candidates to score (>= 2); the last generation is completed, so up to popsize - 1 more.
     sigma0 : float
@@ -237,27 +237,24 @@ def minimise(evaluate: Callable[[list[np.ndarray]], list[Evaluation]], x0: Seque
     x0 = np.asarray(x0, dtype=float)
     if isinstance(budget, bool) or not isinstance(budget, int) or budget < 2:
         raise ValueError(f"budget = {budget!r}: valid range [2, inf) evaluations")
-    if isinstance(seed, bool) or not isinstance(seed, int) or seed < 1:
-        raise ValueError(f"seed = {seed!r}: valid range [1, inf) (cma reads 0 as a seed from the clock)")
+    if isinstance(seed, bool) or not isinstance(seed, int) or not 0 <= seed < 2**32:
+        raise ValueError(f"seed = {seed!r}: valid range [0, 2**32)")
     if not (0.0 < sigma0 <= 1.0):
         raise ValueError(f"sigma0 = {sigma0!r}: valid range (0, 1] (the box is 1 wide)")
     if x0.ndim != 1 or x0.size < 2 or np.any(x0 < 0.0) or np.any(x0 > 1.0):
         raise ValueError(f"x0 = {x0.tolist()}: expected >= 2 coordinates in [0, 1]")
     state = store.load_state() if store is not None else None
     if state is None:
-        outer = np.random.get_state()
-        es = cma.CMAEvolutionStrategy(x0, sigma0, {"bounds": [0.0, 1.0], "seed": seed, "verbose": -9,
+        # the strategy's own generator (pickled with it), not numpy's global one that cma uses by default
+        randn = np.random.RandomState(seed).randn
+        es = cma.CMAEvolutionStrategy(x0, sigma0, {"bounds": [0.0, 1.0], "seed": math.nan, "randn": randn,
+                                                   "verbose": -9,
                                                    "popsize": min(popsize or default_popsize(x0.size), budget)})
-        state = {"es": es, "rng": np.random.get_state(), "generation": 0, "evaluations": 0,
-                 "best_key": None, "best_x": None, "history": []}
-        np.random.set_state(outer)
+        state = {"es": es, "generation": 0, "evaluations": 0, "best_key": None, "best_x": None, "history": []}
     cache = store.cached() if store is not None else {}
     while state["evaluations"] < budget and not state["es"].stop():
-        es, outer = state["es"], np.random.get_state()
-        np.random.set_state(state["rng"])
+        es = state["es"]
         xs = [np.asarray(x, dtype=float) for x in es.ask()]
-        state["rng"] = np.random.get_state()
-        np.random.set_state(outer)
         todo = list({key(x): x for x in xs if key(x) not in cache}.values())
         for x, evaluation in zip(todo, evaluate(todo) if todo else [], strict=True):
             cache[key(x)] = evaluation

@@ -42,7 +42,7 @@ from sim.characterize import (
 )
 from sim.figures import save_figure
 from sim.motor_torque import CurrentToTorqueMap
-from sim.params import TestbedParams
+from sim.params import TestbedParams, bound_source, bounded_fields, source_bound
 from sim.runlog import RunLog
 
 PAPER_FLEXURE_MODE_ESTIMATE_HZ = 5975.0  # paper Sec. II, sqrt(k_z/J_z)/2π
@@ -127,18 +127,29 @@ def run_plant_card(params: TestbedParams | None = None, *, keep_logs: bool = Fal
     put("breakaway_torque_parameter", p.friction.breakaway_torque_nm, "N·m")
     put("backlash_width_measured", backlash.width_rad, "rad")
     put("backlash_width_parameter", p.backlash.width_rad, "rad")
+    bounded = set(bounded_fields())
     parameters = {name: {"value": value, "unit": unit, "source": source}
+                  | ({"bound": list(source_bound(name)), "bound_source": bound_source(name)} if name in bounded else {})
                   for name, value, unit, source in p.rows()}
     logs = {BREAKAWAY_RUN: breakaway.log, BACKLASH_RUN: backlash.log} if keep_logs else {}
     return PlantCard(parameters, derived, modes, logs)
 
 
+def _bound_text(row: dict[str, Any]) -> str:
+    """``[lo, hi]`` of a bounded parameter's row, ``!`` appended if its value lies outside; "" if unbounded."""
+    if "bound" not in row:
+        return ""
+    lo, hi = row["bound"]
+    return f"[{lo:g}, {hi:g}]" + ("" if lo <= row["value"] <= hi else " !")
+
+
 def format_card(card: PlantCard) -> str:
     """The card as text tables, no line longer than :data:`CARD_WIDTH` characters (sources wrap)."""
-    lines = ["Parameters", f"{'name':44s} {'value':>12s}  {'unit':10s} source", "-" * 110]
+    lines = ["Parameters (bound: what the source allows; ! a value outside it)",
+             f"{'name':44s} {'value':>12s}  {'unit':10s} {'bound':22s} source", "-" * 110]
     for name, row in card.parameters.items():
         value = f"{row['value']:>12s}" if isinstance(row["value"], str) else f"{row['value']:12.6g}"  # a choice
-        head = f"{name:44s} {value}  {row['unit']:10s} "
+        head = f"{name:44s} {value}  {row['unit']:10s} {_bound_text(row):22s} "
         source = textwrap.wrap(row["source"], CARD_WIDTH - len(head), break_on_hyphens=False) or [""]
         lines += [head + source[0]] + [" " * len(head) + rest for rest in source[1:]]
     lines += ["", "Derived and simulated", f"{'quantity':44s} {'value':>12s}  unit", "-" * 70]

@@ -8,7 +8,8 @@ Each reads the plant at the end of a tick. The optical joint torque sensor is
 * :class:`MotorEncoder` ``q_motor`` [rad] and :class:`MotorVelocity` ``qd_motor`` [rad/s], output side.
 * :class:`LeverAngle` ``q`` [rad] and :class:`LeverVelocity` ``qd`` [rad/s].
 * :class:`BoardThermometer` ``temperature`` [°C]: the TMP117 reading.
-* :class:`LoadCell` ``tau_loadcell`` [N·m]: force x lever length with the load cell's white reading noise.
+* :class:`LoadCell` ``tau_loadcell`` [N·m]: force x lever length through the amplifier's first-order low-pass,
+  plus the load cell's white reading noise.
 """
 
 from __future__ import annotations
@@ -17,6 +18,7 @@ from collections.abc import Mapping, Sequence
 
 import numpy as np
 
+from sim.lowpass import lowpass_gain, lowpass_step
 from sim.params import TestbedParams
 from sim.plant import Plant
 
@@ -92,12 +94,14 @@ class BoardThermometer(_PlantSignal):
 
 
 class LoadCell:
-    """The load cell's torque reading [N·m]: force x lever length plus white noise of standard deviation
-    ``loadcell.reading_noise_n`` x ``lever.length_m``, drawn from ``rng`` (noiseless without one).
+    """The load cell's torque reading [N·m]: force x lever length through the amplifier, a first-order low-pass
+    of ``loadcell.amplifier_bandwidth_hz`` sampled every control period (:mod:`sim.lowpass`), plus white noise
+    of standard deviation ``loadcell.reading_noise_n`` x ``lever.length_m`` added after the filter.
 
-    ``noise``: an int seeds the load cell's own stream of that seed (:func:`noise_rng`, apart from the
-    sensor's), restarted by :meth:`reset`; a Generator is drawn from as it goes; None reads without noise. The
-    free fixture has no load cell: there the reading is the flexure's true torque, without noise.
+    The filter starts at the first reading after :meth:`reset` (no start-up transient). ``noise``: an int seeds
+    the load cell's own stream of that seed (:func:`noise_rng`, apart from the sensor's), restarted by
+    :meth:`reset`; a Generator is drawn from as it goes; None reads without noise. The free fixture has no load
+    cell: there the reading is the flexure's true torque, unfiltered and without noise.
     """
 
     name, unit = "tau_loadcell", "N·m"
@@ -106,20 +110,24 @@ class LoadCell:
     def __init__(self, params: TestbedParams, noise: int | np.random.Generator | None = None) -> None:
         self.lever_m = params.lever.length_m
         self.sigma_nm = params.loadcell.reading_noise_n * self.lever_m
+        self.gain = lowpass_gain(params.loadcell.amplifier_bandwidth_hz, params.simulation.control_period_s)
         self._noise = noise
         self.reset()
 
     def reset(self) -> None:
-        """Restart a seeded noise stream (a Generator goes on where it is)."""
+        """Restart the filter and a seeded noise stream (a Generator goes on where it is)."""
         rng = noise_rng(self._noise) if isinstance(self._noise, (int, np.integer)) else self._noise
         self._rng = rng
         self._normal = rng.normal if rng is not None and self.sigma_nm > 0.0 else None
+        self._filtered: float | None = None
 
     def read(self, plant: Plant) -> float:
         if plant.fixture != "locked":
             return plant.flexure_torque_nm
         value = plant.loadcell_force_n * self.lever_m  # what it measures is the force at the lever tip
-        return value + self._normal(0.0, self.sigma_nm) if self._normal is not None else value
+        filtered = value if self._filtered is None else lowpass_step(self._filtered, value, self.gain)
+        self._filtered = filtered
+        return filtered + self._normal(0.0, self.sigma_nm) if self._normal is not None else filtered
 
     def extra_values(self) -> Sequence[float]:
         return ()

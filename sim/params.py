@@ -32,10 +32,18 @@ def range_text(low: float, high: float, *, low_open: bool = False) -> str:
 
 
 def quantity(default: float, unit: str, source: str, low: float = -INF, high: float = INF,
-             *, low_open: bool = False) -> Any:
-    """A dataclass field with unit, source and valid range ``[low, high]`` (``(low, high]`` if low_open)."""
+             *, low_open: bool = False, bound: tuple[float, float] | None = None, bound_source: str = "") -> Any:
+    """A dataclass field with unit, source and valid range ``[low, high]`` (``(low, high]`` if low_open).
+
+    ``bound`` is the interval ``(lo, hi)`` the value's source allows (a datasheet spread, a paper's "≈", a
+    plausible range for an assumption), with ``bound_source`` saying where it comes from; the valid range is a
+    sanity limit, the bound what an identification may search."""
+    if (bound is None) != (not bound_source):
+        raise ValueError(f"quantity(source={source[:40]!r}...): bound and bound_source come together")
+    if bound is not None and not bound[0] <= bound[1]:
+        raise ValueError(f"quantity(source={source[:40]!r}...): bound {bound} has lo > hi")
     return field(default=default, metadata={"unit": unit, "source": source, "low": low, "high": high,
-                                            "low_open": low_open})
+                                            "low_open": low_open, "bound": bound, "bound_source": bound_source})
 
 
 def choice(default: str, choices: tuple[str, ...], source: str) -> Any:
@@ -49,32 +57,44 @@ class MotorParams:
 
     gear_ratio: float = quantity(
         8.0, "1", "assumed: GIM8108-8 variant (SteadyWin names the planetary ratio in the suffix); the 8:1 "
-        "model is the one rated 18 N·m peak as the paper states (Sec. II)", 1.0, 200.0)
+        "model is the one rated 18 N·m peak as the paper states (Sec. II)", 1.0, 200.0,
+        bound=(8.0, 8.0), bound_source="assumed: the 18 N·m peak (paper Sec. II) fixes the GIM8108-8 variant; not "
+        "identified")
     rotor_inertia_kgm2: float = quantity(
         1.0e-4, "kg·m²", "assumed: thin-rim estimate m·r² of an 81 mm outrunner rotor (can + magnets "
         "~0.075 kg at mean radius ~0.036 m), an upper bound; not in the paper or the vendor's sheet (model "
-        "README, Derivations)", 0.0, 1.0, low_open=True)
+        "README, Derivations)", 0.0, 1.0, low_open=True,
+        bound=(6.3e-5, 1.0e-4), bound_source="MIT Mini Cheetah rotor from CAD (6.3e-5, MiniCheetah.h) to the "
+        "thin-rim upper bound m·r² (1.0e-4); not in the vendor's sheet")
     rotor_mass_kg: float = quantity(
         0.075, "kg", "assumed: can + magnets of an 81 mm outrunner, the mass of the thin-rim estimate",
         0.0, 10.0, low_open=True)
     torque_constant_nm_per_a: float = quantity(
         0.1, "N·m/A", "assumed: motor-side q-axis constant of a ~100 rpm/V 8108 outrunner (60/(2π·KV))",
-        0.0, 10.0, low_open=True)
+        0.0, 10.0, low_open=True,
+        bound=(0.07, 0.13), bound_source="assumed: ±30 % around 60/(2π·KV) for KV ≈ 100 rpm/V (the vendor's KV is "
+        "not verified)")
     winding_resistance_ohm: float = quantity(
         0.3, "Ω", "assumed: dc-equivalent winding resistance of an 8108 outrunner, used for copper losses "
         "(heat into the thermal model) and back-EMF bookkeeping", 0.0, 100.0, low_open=True)
     current_loop_time_constant_s: float = quantity(
         1.6e-4, "s", "assumed: first-order closed current loop of 1 kHz bandwidth, 1/(2π·1 kHz); the "
-        "driver accepts torque commands up to 2 kHz (paper Sec. II)", 0.0, 0.1, low_open=True)
+        "driver accepts torque commands up to 2 kHz (paper Sec. II)", 0.0, 0.1, low_open=True,
+        bound=(8.0e-5, 8.0e-4), bound_source="assumed: closed current loop of 200 Hz to 2 kHz bandwidth; the paper's "
+        "2 kHz is a command rate, not a loop bandwidth")
     peak_torque_nm: float = quantity(
         18.0, "N·m", "paper Sec. II: GIM8108 maximum torque at the output", 0.0, 1000.0, low_open=True)
     command_delay_s: float = quantity(
         5.0e-4, "s", "assumed: CAN-FD transfer and driver processing of one torque command; the paper "
-        "gives none", 0.0, 0.05)
+        "gives none", 0.0, 0.05,
+        bound=(0.0, 2.0e-3), bound_source="assumed: a CAN-FD frame (tens of µs), one 1 kHz tick and the driver's "
+        "processing, at most 2 ms")
     torque_saturation_per_nm: float = quantity(
         0.0176, "1/(N·m)", "tuned: magnetic saturation τ = τ_cmd/(1 + α·|τ_cmd|) that the driver's "
         "current-based estimate does not see (Sec. V-A), 15 % droop at 10 N·m; chosen on the grid of "
-        "experiments/identify_defaults.py against Tables VI-VII (model README, Derivations)", 0.0, 0.025)
+        "experiments/identify_defaults.py against Tables VI-VII (model README, Derivations)", 0.0, 0.025,
+        bound=(0.0, 0.025), bound_source="assumed: the paper notes a nonlinearity (motor experiments), no number; "
+        "0-20 % droop at 10 N·m, below the 1/18 at which no current gives 18 N·m")
 
 
 @dataclass(frozen=True)
@@ -83,15 +103,23 @@ class GearFrictionParams:
 
     breakaway_torque_nm: float = quantity(
         0.13, "N·m", "paper Sec. V: stiction threshold ≈ 0.13 N·m (smallest command that starts sustained "
-        "motion)", 0.0, INF, low_open=True)
+        "motion)", 0.0, INF, low_open=True,
+        bound=(0.117, 0.143), bound_source="paper, motor experiments: stiction threshold '≈ 0.13 N·m'; ±10 % assumed "
+        "for the '≈'")
     coulomb_torque_nm: float = quantity(
         0.09, "N·m", "assumed: sliding level ~0.7 of breakaway, typical Stribeck drop of greased "
-        "planetary stages", 0.0, INF, low_open=True)
+        "planetary stages", 0.0, INF, low_open=True,
+        bound=(0.065, 0.13), bound_source="assumed: 0.5-1.0x the 0.13 N·m breakaway, the Stribeck drop of greased "
+        "gear stages")
     stribeck_velocity_rad_s: float = quantity(
         0.05, "rad/s", "assumed: output-side Stribeck velocity of a greased planetary stage", 0.0, INF,
-        low_open=True)
+        low_open=True,
+        bound=(0.01, 0.2), bound_source="assumed: output-side Stribeck velocity of a greased planetary stage, "
+        "0.01-0.2 rad/s; neither the paper nor the vendor gives one")
     viscous_nms_per_rad: float = quantity(
-        0.02, "N·m·s/rad", "assumed: output-side viscous friction of grease and bearings", 0.0, INF)
+        0.02, "N·m·s/rad", "assumed: output-side viscous friction of grease and bearings", 0.0, INF,
+        bound=(0.005, 0.08), bound_source="assumed: 0.25-4x the default; neither the paper nor the vendor gives a "
+        "viscous coefficient")
     output_viscous_share: float = quantity(
         0.1, "1", "assumed: share of viscous_nms_per_rad acting on the output flange and hub (output bearing and "
         "seal), on the output side of the backlash dead band; it damps the free output inside the gap "
@@ -99,14 +127,20 @@ class GearFrictionParams:
     presliding_stiffness_nm_per_rad: float = quantity(
         2000.0, "N·m/rad", "assumed: LuGre bristle stiffness sigma0 at the output; presliding "
         "displacement breakaway/sigma0 = 65 µrad (~0.65 µm at a 10 mm gear pitch radius)", 0.0, INF,
-        low_open=True)
+        low_open=True,
+        bound=(500.0, 8000.0), bound_source="assumed: presliding displacement breakaway/sigma0 of 16-260 µrad at the "
+        "output (0.16-2.6 µm at a 10 mm pitch radius)")
     presliding_damping_ratio: float = quantity(
         1.0, "1", "assumed: critically damped presliding, sigma1 = 2·ζ·sqrt(sigma0·J_reflected) (Canudas de "
-        "Wit et al. 1995 size sigma1 from sigma0 and the moving mass)", 0.0, 10.0, low_open=True)
+        "Wit et al. 1995 size sigma1 from sigma0 and the moving mass)", 0.0, 10.0, low_open=True,
+        bound=(0.6, 1.0), bound_source="assumed: 0.6 to critical; LuGre sizes sigma1 from sigma0 and the moving "
+        "inertia (Canudas de Wit et al. 1995)")
     load_friction_coefficient: float = quantity(
         0.05, "1", "tuned: 1 - η of one planetary stage of catalogue efficiency η = 0.95, chosen on the grid of "
         "experiments/identify_defaults.py against Tables VI-VII; sim.plant writes it per tick into the "
-        "gear joint's frictionloss (model README, Derivations)", 0.0, 1.0)
+        "gear joint's frictionloss (model README, Derivations)", 0.0, 1.0,
+        bound=(0.02, 0.04), bound_source="Beckhoff PLE080 catalogue: one planetary stage has η = 96-98 % at full "
+        "load, 1 - η = 0.02-0.04 (an industrial gear; SteadyWin gives no η)")
     load_friction_time_constant_s: float = quantity(
         1.25e-4, "s", "tuned: solreffriction time constant of that frictionloss row, two physics steps (the "
         "stiffest MuJoCo resolves stably); with load_friction_impedance it bounds the creep while stuck "
@@ -124,7 +158,9 @@ class BacklashParams:
         5.0e-4, "rad", "tuned: 0.03° dead band of a tight planetary stage, chosen on the grid of "
         "experiments/identify_defaults.py against Tables VI-VII; the paper reports backlash but no value "
         "(Sec. V), the vendor's sheet a 15 arcmin bound (model README, Derivations)", 0.0, 0.2,
-        low_open=True)
+        low_open=True,
+        bound=(2.9e-4, 4.4e-3), bound_source="SteadyWin GIM8108-8: about 15 arcmin (4.4 mrad, via ODrive notes) at "
+        "most; 1 arcmin (0.29 mrad), the tightest planetary class, assumed as least")
     stop_time_constant_s: float = quantity(
         1.25e-4, "s", "tuned: solref time constant of the stops, two physics steps (the stiffest MuJoCo "
         "resolves stably); with stop_impedance the stop penetrates < 10 % of the gap at 18 N·m and < 60 % "
@@ -149,16 +185,25 @@ class FlexureParams:
     spoke_count: int = quantity(4, "1", "paper Sec. II: four spokes", 3, 16)
     youngs_modulus_pa: float = quantity(
         71.7e9, "Pa", "assumed: aluminium 7075-T6 (ASM data); the paper names no material, but its 114.5 g "
-        "for a 96 x 12 mm body fits aluminium, not steel", 1e9, 500e9)
-    poisson_ratio: float = quantity(0.33, "1", "assumed: aluminium 7075-T6 (ASM data)", 0.0, 0.5)
-    density_kg_m3: float = quantity(2810.0, "kg/m³", "assumed: aluminium 7075-T6 (ASM data)", 100.0, 25000.0)
+        "for a 96 x 12 mm body fits aluminium, not steel", 1e9, 500e9,
+        bound=(68.9e9, 71.7e9), bound_source="assumed: aluminium (paper Table II mass fits it): 6061-T6 68.9 GPa to "
+        "7075-T6 71.7 GPa (ASM data)")
+    poisson_ratio: float = quantity(
+        0.33, "1", "assumed: aluminium 7075-T6 (ASM data)", 0.0, 0.5,
+        bound=(0.33, 0.33), bound_source="assumed: aluminium, 6061-T6 and 7075-T6 both 0.33 (ASM data)")
+    density_kg_m3: float = quantity(
+        2810.0, "kg/m³", "assumed: aluminium 7075-T6 (ASM data)", 100.0, 25000.0,
+        bound=(2700.0, 2810.0), bound_source="assumed: aluminium (paper Table II mass fits it): 6061-T6 2700 to "
+        "7075-T6 2810 kg/m³ (ASM data)")
     shear_correction: float = quantity(5.0 / 6.0, "1", "paper Sec. II: κ = 5/6, rectangular section",
                                        0.0, 1.0, low_open=True)
     hub_bore_radius_m: float = quantity(
         0.010, "m", "assumed: centring bore of the hub on the motor flange", 0.0, 1.0)
     structural_damping_ratio: float = quantity(
         0.02, "1", "assumed: damping ratio of the lever side ringing on the flexure, sqrt(K_t·J_lever); "
-        "2 % is typical of a bolted aluminium assembly, joints included", 0.0, 1.0)
+        "2 % is typical of a bolted aluminium assembly, joints included", 0.0, 1.0,
+        bound=(0.005, 0.05), bound_source="assumed: 0.5-5 % of critical, bolted aluminium assemblies with their "
+        "joints")
 
 
 @dataclass(frozen=True)
@@ -189,34 +234,61 @@ class LoadCellParams:
     capacity_n: float = quantity(500.0, "N", "paper Sec. V: SBA-50L, 500 N", 0.0, INF, low_open=True)
     full_scale_deflection_m: float = quantity(
         3.0e-4, "m", "assumed: typical S-beam deflection at rated capacity (0.2-0.5 mm); the tip support is "
-        "this spring in series with the lever's bending", 0.0, 0.01, low_open=True)
-    damping_ratio: float = quantity(0.02, "1", "assumed: light damping of the tip support", 0.0, 1.0)
+        "this spring in series with the lever's bending", 0.0, 0.01, low_open=True,
+        bound=(2.0e-4, 5.0e-4), bound_source="assumed: typical S-beam deflection at rated capacity, 0.2-0.5 mm (the "
+        "SBA-50L sheet is not read)")
+    damping_ratio: float = quantity(
+        0.02, "1", "assumed: light damping of the tip support", 0.0, 1.0,
+        bound=(0.005, 0.05), bound_source="assumed: 0.5-5 % of critical, bolted aluminium assemblies with their "
+        "joints")
     reading_noise_n: float = quantity(
         0.025, "N", "tuned: inferred in closed form by experiments/identify_defaults.py from Table VI's "
         "sensor-feedback step errors, flat across step sizes (a measurement floor); white at 1 kHz, "
-        "added to the logged force only (model README, Derivations)", 0.0, 50.0)
+        "added to the logged force only (model README, Derivations)", 0.0, 50.0,
+        bound=(0.0, 0.026), bound_source="paper Table VI: sensor-feedback step RMS ≤ 0.0026 N·m over the 0.1 m lever "
+        "bounds the reading noise by 0.026 N (the loop adds ≥ 0)")
+    amplifier_bandwidth_hz: float = quantity(
+        1000.0, "Hz", "assumed: −3 dB frequency of the load cell's amplifier, a first-order low-pass on the force "
+        "signal logged at the control rate; the paper names no amplifier for the SBA-50L (sim.lowpass)",
+        0.0, 1.0e6, low_open=True,
+        bound=(10.0, 5000.0), bound_source="assumed: ≥ 10 Hz, as its lag alone on Table VII's 10 N·m 0.2 Hz sine "
+        "stays ≤ 0.152 N·m RMS; ≤ 5 kHz, an analog strain-gauge amplifier (1-10 kHz)")
 
 
 @dataclass(frozen=True)
 class ThermalParams:
     """Lumped two-node thermal network (sensor board, motor winding) in still air."""
 
-    ambient_c: float = quantity(25.0, "°C", "assumed: laboratory", -40.0, 85.0)
+    ambient_c: float = quantity(
+        25.0, "°C", "assumed: laboratory", -40.0, 85.0,
+        bound=(20.0, 30.0), bound_source="assumed: an air-conditioned laboratory")
     board_heat_capacity_j_per_k: float = quantity(
         110.0, "J/K", "assumed: 114.5 g aluminium body (paper Table II) at 900 J/(kg·K) plus the PCB",
-        0.0, INF, low_open=True)
+        0.0, INF, low_open=True,
+        bound=(100.0, 130.0), bound_source="assumed: 114.5 g of aluminium (paper Table II) at 900 J/(kg·K) is 103 "
+        "J/K, plus 0-25 J/K of PCB and parts")
     board_to_ambient_k_per_w: float = quantity(
         5.5, "K/W", "assumed: natural convection h ≈ 10 W/(m²·K) over ~0.018 m² of sensor surface",
-        0.0, INF, low_open=True)
+        0.0, INF, low_open=True,
+        bound=(2.2, 11.0), bound_source="assumed: natural convection h = 5-25 W/(m²·K) over ~0.018 m² of sensor "
+        "surface")
     mcu_power_w: float = quantity(0.4, "W", "assumed: STM32H7 at full clock (paper Sec. II names the MCU)",
-                                  0.0, 10.0)
+                                  0.0, 10.0,
+        bound=(0.2, 0.6), bound_source="assumed: STM32H7 run power at full clock with its peripherals (the "
+        "datasheet's figures are not read)")
     motor_heat_capacity_j_per_k: float = quantity(
-        230.0, "J/K", "assumed: ~0.38 kg motor at ~600 J/(kg·K)", 0.0, INF, low_open=True)
+        230.0, "J/K", "assumed: ~0.38 kg motor at ~600 J/(kg·K)", 0.0, INF, low_open=True,
+        bound=(150.0, 340.0), bound_source="assumed: ~0.38 kg of motor at 400-900 J/(kg·K) (copper and steel to "
+        "aluminium)")
     motor_to_ambient_k_per_w: float = quantity(2.5, "K/W", "assumed: 96 mm housing in still air",
-                                               0.0, INF, low_open=True)
+                                               0.0, INF, low_open=True,
+        bound=(1.4, 7.1), bound_source="assumed: natural convection h = 5-25 W/(m²·K) over ~0.028 m² of a 96 x 45 mm "
+        "housing")
     motor_to_board_k_per_w: float = quantity(
         5.0, "K/W", "assumed: conduction through the bolted hub; the paper notes motor heat reaches the "
-        "sensor (Sec. IV-C)", 0.0, INF, low_open=True)
+        "sensor (Sec. IV-C)", 0.0, INF, low_open=True,
+        bound=(2.0, 20.0), bound_source="assumed: conduction through the bolted aluminium hub, contact resistance "
+        "included")
     tmp117_resolution_c: float = quantity(0.0078125, "°C", "TI TMP117 datasheet: 16-bit, 7.8125 m°C LSB",
                                           0.0, 1.0, low_open=True)
     update_period_s: float = quantity(
@@ -234,16 +306,24 @@ class PhotoReflectorParams:
                               0, 2**31 - 1)
     sensitivity_min_v_per_m: float = quantity(
         973.0, "V/m", "paper Sec. IV-B: 0.024 V/(N·m) (0.6 V at 25 N·m) at the default K_t = 1217 N·m/rad and "
-        "l_s = 30 mm: 0.024·K_t/l_s", 0.0, INF, low_open=True)
+        "l_s = 30 mm: 0.024·K_t/l_s", 0.0, INF, low_open=True,
+        bound=(973.0, 1622.0), bound_source="paper, calibration: channel sensitivities 0.024-0.04 V/(N·m), times "
+        "K_t/l_s at the defaults")
     sensitivity_max_v_per_m: float = quantity(
         1622.0, "V/m", "paper Sec. IV-B: 0.04 V/(N·m) (1 V at 25 N·m), converted as above", 0.0, INF,
-        low_open=True)
+        low_open=True,
+        bound=(973.0, 1622.0), bound_source="paper, calibration: channel sensitivities 0.024-0.04 V/(N·m), times "
+        "K_t/l_s at the defaults")
     quadratic_fraction_max: float = quantity(
         0.04, "1", "assumed: |quadratic term| up to 4 % of the linear one at the 25 N·m calibration span (the paper "
         "fits x³, x², x per channel, Eq. 10); with the cubic term, 0.2-1.3 % of the swing from a line "
-        "(model README, Derivations)", 0.0, 0.5)
+        "(model README, Derivations)", 0.0, 0.5,
+        bound=(0.23, 0.47), bound_source="assumed: a 1/d² reflector response at a 2-4 mm gap over the 0.62 mm gap "
+        "change at 25 N·m gives 1.5·Δ/d; the TCRT1000 distance curve is not read")
     cubic_fraction_max: float = quantity(
-        0.01, "1", "assumed: |cubic term| up to 1 % of the linear one at the calibration span", 0.0, 0.5)
+        0.01, "1", "assumed: |cubic term| up to 1 % of the linear one at the calibration span", 0.0, 0.5,
+        bound=(0.048, 0.19), bound_source="assumed: a 1/d² reflector response at a 2-4 mm gap over the 0.62 mm gap "
+        "change at 25 N·m gives 2·(Δ/d)²; the TCRT1000 curve is not read")
     operating_point_v: float = quantity(
         1.65, "V", "assumed: mid-range of the 3.3 V ADC, set by the LED and collector resistors", 0.0, 3.3)
     operating_point_spread_v: float = quantity(
@@ -251,10 +331,14 @@ class PhotoReflectorParams:
     noise_min_v: float = quantity(
         2.4e-4, "V", "tuned: quietest channel's white-noise std; with noise_max_v it sets the LS and QP stds of the "
         "resolution comparison (Sec. IV-B). Plausible range assumed for tests: 0.15-0.4 mV (model "
-        "README, Derivations)", 0.0, 1.0)
+        "README, Derivations)", 0.0, 1.0,
+        bound=(1.5e-4, 4.0e-4), bound_source="assumed: 0.15-0.4 mV std for the quietest channel; the paper gives the "
+        "calibrated stds, not the channels'")
     noise_max_v: float = quantity(
         9.6e-4, "V", "tuned: noisiest channel's white-noise std; plausible range assumed for tests: 1-6x "
-        "noise_min_v (the TCRT1000's channel-to-channel noise spread is not in the paper)", 0.0, 1.0)
+        "noise_min_v (the TCRT1000's channel-to-channel noise spread is not in the paper)", 0.0, 1.0,
+        bound=(1.5e-4, 2.4e-3), bound_source="assumed: 1-6x the quietest channel's bound; the TCRT1000's "
+        "channel-to-channel noise spread is not in the paper")
     slip_twist_max_rad: float = quantity(
         0.0103, "rad", "assumed: largest breakaway twist of the Maxwell-slip elements of the target's bolted "
         "joint, half the ±25 N·m calibration span at K_t (12.5 N·m), so loops over the calibration protocol "
@@ -262,22 +346,30 @@ class PhotoReflectorParams:
         0.0, 0.1, low_open=True)
     slip_fraction_min: float = quantity(
         0.0055, "1", "tuned: smallest fraction of the twist a channel sees through the slipping joint; the paper's "
-        "hysteresis is 0.139 % FS (Table III)", 0.0, 1.0)
+        "hysteresis is 0.139 % FS (Table III)", 0.0, 1.0,
+        bound=(0.003, 0.006), bound_source="assumed: 0.3-0.6 % of the twist; the paper gives the hysteresis (Table "
+        "III), not the channels' slip")
     slip_fraction_max: float = quantity(
         0.0165, "1", "tuned: largest fraction of the twist a channel sees through the slipping joint; its spread "
         "gives the QP its resolution gain over LS (Sec. IV-B). Plausible range assumed for tests: 2-4x "
-        "slip_fraction_min (model README, Derivations)", 0.0, 1.0)
+        "slip_fraction_min (model README, Derivations)", 0.0, 1.0,
+        bound=(0.006, 0.024), bound_source="assumed: 2-4x the smallest fraction's bound of 0.3-0.6 %")
     quartic_fraction_max: float = quantity(
         0.004, "1", "assumed: |quartic term| of the optical response, curvature beyond the cubic basis of Eq. 10, up "
         "to this fraction of the linear one at the calibration span; the eight-channel cubic fit cancels "
-        "it (model README, Derivations)", 0.0, 0.5)
+        "it (model README, Derivations)", 0.0, 0.5,
+        bound=(0.0093, 0.074), bound_source="assumed: a 1/d² reflector response at a 2-4 mm gap over the 0.62 mm gap "
+        "change at 25 N·m gives 2.5·(Δ/d)³; the TCRT1000 curve is not read")
     crosstalk_v_per_nm: float = quantity(
         2.4e-3, "V/(N·m)", "paper Sec. IV-B: about 0.06 V per channel at 25 N·m of T_x or T_y", 0.0, 1.0)
     crosstalk_spread: float = quantity(
-        0.3, "1", "assumed: relative channel-to-channel spread of the tilt response", 0.0, 1.0)
+        0.3, "1", "assumed: relative channel-to-channel spread of the tilt response", 0.0, 1.0,
+        bound=(0.1, 0.5), bound_source="assumed: 10-50 % channel-to-channel spread of the tilt response")
     optical_tempco_per_k: float = quantity(
         -4.0e-3, "1/K", "assumed: IR LED output falls ~0.4 %/K (TCRT1000-class emitters); scales each channel's "
-        "signal above its dark level", -0.1, 0.1)
+        "signal above its dark level", -0.1, 0.1,
+        bound=(-8.0e-3, 0.0), bound_source="assumed: IR emitter output falls 0-0.8 %/K, partly offset by the "
+        "phototransistor's gain; the TCRT1000 temperature curve is not read")
     optical_tempco_spread_per_k: float = quantity(
         2.0e-4, "1/K", "assumed: channel-to-channel spread of that coefficient", 0.0, 0.1)
     reference_temperature_c: float = quantity(25.0, "°C", "assumed: calibration temperature", -40.0, 85.0)
@@ -298,7 +390,9 @@ class PhotoReflectorParams:
         0.0, "1", "assumed: ATI MINI85 T_z gain error g, the reading is (1 + g)·τ + noise, quantised; 0 = an "
         "exact reference, because the unit's actual error is unknown. Range from paper Sec. IV-A: 1 % FS "
         "accuracy; a gain error g is off by |g|·80 N·m at full scale, so |g| <= 1 % keeps the error within "
-        "1 % FS", -0.01, 0.01)
+        "1 % FS", -0.01, 0.01,
+        bound=(-0.01, 0.01), bound_source="paper, calibration: ATI MINI85 'accuracy of 1 % full scale'; |g| ≤ 1 % "
+        "keeps the error within 1 % FS")
 
 
 @dataclass(frozen=True)
@@ -347,7 +441,7 @@ class TestbedParams:
             _validate_group(group.name, getattr(self, group.name))
         _validate_cross(self)
 
-    def replace(self, **groups: dict[str, Any]) -> "TestbedParams":
+    def replace(self, **groups: dict[str, Any]) -> TestbedParams:
         """A copy with fields overridden, e.g. ``p.replace(friction={"breakaway_torque_nm": 0.2})``."""
         return from_dict(groups, base=self)
 
@@ -373,6 +467,40 @@ def field_range(params: TestbedParams, group: str, name: str) -> tuple[float, fl
     if f.metadata["low_open"]:
         low = math.nextafter(low, math.inf)
     return low, high
+
+
+def _bounds() -> dict[str, tuple[tuple[float, float], str]]:
+    """``group.field`` -> (source bound, its source), for every field that has one, in declaration order."""
+    out = {}
+    for group in dataclasses.fields(TestbedParams):
+        for f in dataclasses.fields(group.default_factory):
+            if f.metadata.get("bound") is not None:
+                out[f"{group.name}.{f.name}"] = (f.metadata["bound"], f.metadata["bound_source"])
+    return out
+
+
+def bounded_fields() -> tuple[str, ...]:
+    """Every ``group.field`` whose source gives a bound, in declaration order."""
+    return tuple(_bounds())
+
+
+def _bound_entry(path: str) -> tuple[tuple[float, float], str]:
+    bounds = _bounds()
+    if path not in bounds:
+        raise KeyError(f"{path!r} has no source bound; bounded fields: {', '.join(bounds) or 'none'}")
+    return bounds[path]
+
+
+def source_bound(path: str) -> tuple[float, float]:
+    """The bound ``(lo, hi)`` that the source of ``path`` ("group.field") allows, in the field's unit.
+
+    Raises KeyError naming the path and the bounded fields if the field has no bound (or does not exist)."""
+    return _bound_entry(path)[0]
+
+
+def bound_source(path: str) -> str:
+    """Where the bound of ``path`` ("group.field") comes from; KeyError as :func:`source_bound`."""
+    return _bound_entry(path)[1]
 
 
 def _validate_group(name: str, obj: Any) -> None:

@@ -22,7 +22,11 @@ def test_plant_card_prints_the_tables_and_writes_the_json(tmp_path):
     assert (tmp_path / "plant.png").stat().st_size > 0 and f"figure: {tmp_path / 'plant.png'}" in result.stdout
     assert "flexure_stiffness" in result.stdout and "paper: 5975 Hz estimate, 3407 Hz FEA" in result.stdout
     card = json.loads(out.read_text())
-    assert set(card["parameters"]["friction.breakaway_torque_nm"]) == {"value", "unit", "source"}
+    bounded = {"value", "unit", "source", "bound", "bound_source"}
+    assert set(card["parameters"]["friction.breakaway_torque_nm"]) == bounded
+    assert set(card["parameters"]["simulation.control_period_s"]) == bounded - {"bound", "bound_source"}
+    assert card["parameters"]["friction.breakaway_torque_nm"]["bound"] == [0.117, 0.143]
+    assert "[0.02, 0.04] !" in result.stdout  # friction.load_friction_coefficient: 0.05, outside its bound
     printed = result.stdout.splitlines()
     assert max(len(line) for line in printed) <= 160  # sources wrap
     longest = max(card["parameters"].values(), key=lambda row: len(row["source"]))["source"]

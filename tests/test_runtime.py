@@ -3,6 +3,8 @@ the paper's experiments."""
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 import pytest
 
@@ -93,6 +95,31 @@ def test_the_load_cell_noise_has_its_stated_deviation_and_its_own_seeded_stream(
     free.step(0.2)
     assert LoadCell(PARAMS, 7).read(free) == free.flexure_torque_nm
 
+
+
+def test_the_load_cell_lags_through_its_amplifier_from_its_first_reading_and_adds_noise_after_it():
+    """Reading k is y_k = y_{k-1} + (1 − exp(−2π f_c T))·(x_k − y_{k-1}) of the true lever-tip torque x_k,
+    y_0 = x_0 (no start-up transient, again after reset); the noise stream is added to y_k unfiltered."""
+    params = PARAMS.replace(loadcell={"amplifier_bandwidth_hz": 20.0})
+    gain = 1.0 - math.exp(-2.0 * math.pi * 20.0 * params.simulation.control_period_s)
+    plant = Plant(params, "locked")
+    quiet, noisy = LoadCell(params, None), LoadCell(params, 7)
+    true, read, read_noisy = [], [], []
+    for command in np.r_[np.full(5, 0.3), np.full(60, 1.0)]:
+        plant.step(command)
+        true.append(plant.loadcell_torque_nm)
+        read.append(quiet.read(plant))
+        read_noisy.append(noisy.read(plant))
+    expected = [true[0]]
+    for x in true[1:]:
+        expected.append(expected[-1] + gain * (x - expected[-1]))
+    np.testing.assert_allclose(read, expected, rtol=1e-12, atol=1e-15)
+    assert max(read) - true[-1] < 0.5 * (max(true) - true[-1])  # 20 Hz smooths the step's overshoot
+    sigma = params.loadcell.reading_noise_n * params.lever.length_m
+    draws = np.random.default_rng([7, LOADCELL_NOISE_STREAM]).normal(0.0, sigma, len(read))
+    np.testing.assert_allclose(np.array(read_noisy) - read, draws, rtol=0, atol=1e-14)
+    quiet.reset()
+    assert quiet.read(plant) == true[-1]
 
 class BangBang:
     """A user's controller, unknown to the project: relay on the sensor's torque error, with a reference

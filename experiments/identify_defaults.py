@@ -7,7 +7,8 @@
 What it fits, to what
 ---------------------
 The parameters of :data:`SEARCHED` (gear friction, backlash, torque droop, command delay, current loop, load-cell
-amplifier), each searched in [0, 1] mapped onto its source bound (``sim.params``; log scale where hi/lo > 3).
+amplifier), each searched in [0, 1] mapped onto its source bound (``sim.params.source_bound``; log scale where
+hi/lo > 3).
 The paper fixes the breakaway (0.13 N·m); the load-cell reading noise stays the closed form of its source.
 A candidate runs every step, disturbance, sine and square test under both feedbacks (the cases of
 ``experiments.step`` and ``experiments.sinusoid``, their rows built by those modules) and the breakaway ramp
@@ -73,25 +74,15 @@ from experiments.step import (
 )
 from sim.characterize import measure_breakaway
 from sim.executor import Executor
-from sim.params import ParameterError, TestbedParams, field_range
+from sim.params import ParameterError, TestbedParams, field_range, source_bound
 from sim.protocols import STEPS_NM, WAVEFORMS
 from sim.runlog import RunLog
 
-# The searched parameters (fidelity plan, identification design); bounds in BOUNDS.
+# The searched parameters, each on its source bound (sim.params.source_bound).
 SEARCHED = ("friction.coulomb_torque_nm", "friction.load_friction_coefficient", "friction.stribeck_velocity_rad_s",
             "friction.viscous_nms_per_rad", "friction.presliding_stiffness_nm_per_rad",
             "motor.torque_saturation_per_nm", "backlash.width_rad", "motor.command_delay_s",
-            "motor.current_loop_time_constant_s")
-# Source bounds of the searched parameters [unit of the field]: the fidelity plan's table (a), all "assumed".
-BOUNDS = {"friction.coulomb_torque_nm": (0.065, 0.13),  # 0.5-1.0 x the 0.13 N·m breakaway
-          "friction.load_friction_coefficient": (0.02, 0.05),  # 1 - η of one planetary stage
-          "friction.stribeck_velocity_rad_s": (0.01, 0.2),
-          "friction.viscous_nms_per_rad": (0.005, 0.08),
-          "friction.presliding_stiffness_nm_per_rad": (500.0, 8000.0),
-          "motor.torque_saturation_per_nm": (0.0, 0.055),  # below 1/18: the 18 N·m peak stays deliverable
-          "backlash.width_rad": (0.0, 4.4e-3),  # up to 15 arcmin
-          "motor.command_delay_s": (0.0, 2e-3),
-          "motor.current_loop_time_constant_s": (8e-5, 8e-4)}
+            "motor.current_loop_time_constant_s", "loadcell.amplifier_bandwidth_hz")
 FIT_TABLES = ("VI", "VII")
 # [-] a candidate the parameters refuse: above any simulated score (each penalty is at most ~(ln 2e3)² = 58)
 INFEASIBLE_SCORE = 1e4
@@ -115,7 +106,7 @@ def default_space(params: TestbedParams | None = None) -> Space:
     params = params or TestbedParams()
     dims = []
     for path in SEARCHED:
-        lo, hi = BOUNDS[path]
+        lo, hi = source_bound(path)
         valid_lo, valid_hi = field_range(params, *path.split("."))
         dims.append(Dimension(path, max(lo, valid_lo), min(hi, valid_hi), log=log_scaled(lo, hi)))
     return Space(tuple(dims))

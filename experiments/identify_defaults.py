@@ -20,7 +20,8 @@ A candidate runs every step, disturbance, sine and square test under both feedba
   step; losing regulation at ≈ 0.3 N·m of disturbance; sensor feedback holding past 2 N·m; one-sided
   actuation of the low-torque current-feedback waveforms (``experiments.paper``); the breakaway 0.13 ± 10 %.
 
-A candidate the parameters refuse (a constraint between fields) scores :data:`INFEASIBLE_SCORE`. CMA-ES
+The solver time constants (numerical) follow their source's rule, two physics steps, where a candidate lengthens
+the step. A candidate the parameters refuse (a constraint between fields) scores :data:`INFEASIBLE_SCORE`. CMA-ES
 (``experiments.search``, ``pip install -e ".[identify]"``) starts at the defaults with step 0.25 and stops after
 ``--budget`` candidates. Every (candidate, seed, case) is one item of ``sim.executor.Executor``: ``--workers N``
 local processes or ``--ray [ADDRESS]`` (a local cluster without an address); the result is the same on either.
@@ -73,6 +74,7 @@ from experiments.step import (
     run_step_case,
 )
 from sim.characterize import measure_breakaway
+from models.gim8108_testbed.derived import FIXTURES, SOLVER_TIME_CONSTANTS, physics_timestep
 from sim.executor import Executor
 from sim.params import ParameterError, TestbedParams, field_range, source_bound
 from sim.protocols import STEPS_NM, WAVEFORMS
@@ -110,6 +112,19 @@ def default_space(params: TestbedParams | None = None) -> Space:
         valid_lo, valid_hi = field_range(params, *path.split("."))
         dims.append(Dimension(path, max(lo, valid_lo), min(hi, valid_hi), log=log_scaled(lo, hi)))
     return Space(tuple(dims))
+
+
+def candidate_overrides(base: TestbedParams, overrides: dict[str, dict[str, float]]) -> dict[str, dict[str, float]]:
+    """``overrides`` and the solver time constants a candidate needs: their source's rule, two physics steps of
+    the accurate rule (``models.gim8108_testbed.build.check_time_constants``), where the candidate lengthens the
+    step (a softer presliding stiffness does). They are numerical, not identified."""
+    params = base.replace(**overrides)
+    two_steps = 2.0 * max(physics_timestep(params, fixture, "accurate")[0] for fixture in FIXTURES) * (1.0 + 1e-6)
+    out = {group: dict(values) for group, values in overrides.items()}
+    for group, name in SOLVER_TIME_CONSTANTS:
+        if getattr(getattr(params, group), name) < two_steps:
+            out.setdefault(group, {})[name] = two_steps
+    return out
 
 
 def waveform_group(name: str) -> str:
@@ -238,7 +253,7 @@ class Objective:
         self.space, self.setup, self.seeds, self.executor, self.holdout = space, setup, seeds, executor, holdout
 
     def __call__(self, xs: list[np.ndarray]) -> list[Evaluation]:
-        overrides = [self.space.overrides(x) for x in xs]
+        overrides = [candidate_overrides(self.setup.params, self.space.overrides(x)) for x in xs]
         items = [(i, (o, seed, case)) for i, o in enumerate(overrides) for seed in self.seeds
                  for case in cases()]
         items += [(i, (o, self.seeds[0], ("breakaway", "", None))) for i, o in enumerate(overrides)]
@@ -419,7 +434,7 @@ def main(argv: list[str] | None = None) -> None:
 
     x0 = space.positions({row[0]: row[1] for row in base.rows()})
     result = minimise(objective, x0, seed=args.search_seed, budget=args.budget, store=store, progress=progress)
-    overrides = space.overrides(result.best_x)
+    overrides = result.best.record["overrides"]
     rep = report(space, base, result.best_x, result.best, settings, args.holdout, result.evaluations,
                  result.generations)
     rep["seconds"] = time.perf_counter() - start

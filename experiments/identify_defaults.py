@@ -73,8 +73,8 @@ from experiments.step import (
     run_step,
     run_step_case,
 )
-from sim.characterize import measure_breakaway
 from models.gim8108_testbed.derived import FIXTURES, SOLVER_TIME_CONSTANTS, physics_timestep
+from sim.characterize import measure_breakaway
 from sim.executor import Executor
 from sim.params import ParameterError, TestbedParams, field_range, source_bound
 from sim.protocols import STEPS_NM, WAVEFORMS

@@ -27,7 +27,8 @@ the step. A candidate the parameters refuse (a constraint between fields) scores
 local processes or ``--ray [ADDRESS]`` (a local cluster without an address); the result is the same on either.
 
 Outputs in ``--out DIR``: ``evals.jsonl`` (every candidate: x, overrides, score, its parts and rows),
-``state.pkl`` (the strategy after each generation), ``best_params.toml`` (for ``--params`` of every experiment),
+``state.pkl`` (the strategy after each generation), ``defaults.json`` (the base parameters' evaluation, for
+comparison), ``best_params.toml`` (for ``--params`` of every experiment),
 ``report.md`` and ``report.json`` (the score, each parameter with its bound and whether it sits on an edge, every
 figure paper beside simulation, the score of each figure group). ``--resume`` continues the run in DIR and reuses
 its evaluations. ``--holdout GROUP`` leaves one figure group (:data:`GROUPS`) and its behaviours out of the score
@@ -41,6 +42,7 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import json
 import math
 import sys
 import time
@@ -253,13 +255,16 @@ class Objective:
         self.space, self.setup, self.seeds, self.executor, self.holdout = space, setup, seeds, executor, holdout
 
     def __call__(self, xs: list[np.ndarray]) -> list[Evaluation]:
-        overrides = [candidate_overrides(self.setup.params, self.space.overrides(x)) for x in xs]
+        return self.run([candidate_overrides(self.setup.params, self.space.overrides(x)) for x in xs])
+
+    def run(self, overrides: list[dict[str, dict[str, float]]]) -> list[Evaluation]:
+        """The evaluations of parameter sets given as overrides of the base parameters."""
         items = [(i, (o, seed, case)) for i, o in enumerate(overrides) for seed in self.seeds
                  for case in cases()]
         items += [(i, (o, self.seeds[0], ("breakaway", "", None))) for i, o in enumerate(overrides)]
         results = self.executor.map(run_case, [item for _, item in items], shared=self.setup)
         return [self.evaluate(overrides[i], [(item, r) for (j, item), r in zip(items, results, strict=True)
-                                             if j == i]) for i in range(len(xs))]
+                                             if j == i]) for i in range(len(overrides))]
 
     def evaluate(self, overrides: dict, done: list[tuple[tuple, dict[str, Any]]]) -> Evaluation:
         errors = sorted({r["error"] for _, r in done if "error" in r})
@@ -322,7 +327,8 @@ def markdown(rep: dict[str, Any]) -> str:
     lines = ["# Identification of the uncertain defaults (experiments.identify_defaults)", "",
              f"Score {rep['score']:.4f} (mean over seeds {s['seeds']} of RMS ln(sim/paper) over the primary "
              f"Table VI-VII rows plus behaviour penalties), {rep['evaluations']} evaluations in "
-             f"{rep['generations']} generations; substeps rule {s['substeps_rule']}, "
+             f"{rep['generations']} generations (the base parameters score {rep['defaults_score']:.4f}); substeps "
+             f"rule {s['substeps_rule']}, "
              + ("full-length tests." if s["duration_s"] is None else
                 f"**tests cut to {s['duration_s']:g} s: not comparable with the paper's figures.**"), ""]
     if rep["holdout"]:
@@ -432,12 +438,21 @@ def main(argv: list[str] | None = None) -> None:
         print(f"generation {generation}: best score {best:.4f}, {done}/{args.budget} evaluations, "
               f"{elapsed:.0f} s elapsed, ETA {eta:.0f} s", file=sys.stderr, flush=True)
 
+    defaults_path = args.out / "defaults.json"
+    if defaults_path.exists():
+        defaults = Evaluation(**json.loads(defaults_path.read_text()))
+    else:
+        defaults = objective.run([candidate_overrides(base, {})])[0]
+        write_json(defaults_path, {"score": defaults.score, "record": defaults.record})
+    print(f"defaults (the base parameters, outside the search): score {defaults.score:.4f}", file=sys.stderr,
+          flush=True)
     x0 = space.positions({row[0]: row[1] for row in base.rows()})
     result = minimise(objective, x0, seed=args.search_seed, budget=args.budget, store=store, progress=progress)
     overrides = result.best.record["overrides"]
     rep = report(space, base, result.best_x, result.best, settings, args.holdout, result.evaluations,
                  result.generations)
     rep["seconds"] = time.perf_counter() - start
+    rep["defaults_score"] = defaults.score
     (args.out / "best_params.toml").write_text(params_toml(
         overrides, f"experiments.identify_defaults: score {result.best.score:.4f} "
                    f"({result.evaluations} evaluations, seeds {list(args.seeds)}, "
@@ -446,7 +461,7 @@ def main(argv: list[str] | None = None) -> None:
     (args.out / "report.md").write_text(markdown(rep))
     short_run_banner(args)
     print(f"best score {result.best.score:.4f} after {result.evaluations} evaluations ({result.generations} "
-          f"generations, {rep['seconds']:.0f} s)")
+          f"generations, {rep['seconds']:.0f} s); the defaults score {defaults.score:.4f}")
     for p in rep["parameters"]:
         edge = f"  ON THE {p['edge'].upper()} EDGE" if p["edge"] else ""
         print(f"  {p['path']:45s} {p['value']:<10.4g} bound [{p['bound'][0]:.4g}, {p['bound'][1]:.4g}] "

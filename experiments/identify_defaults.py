@@ -46,6 +46,7 @@ import json
 import math
 import sys
 import time
+import tomllib
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -453,6 +454,10 @@ def main(argv: list[str] | None = None) -> None:
                  result.generations)
     rep["seconds"] = time.perf_counter() - start
     rep["defaults_score"] = defaults.score
+    if args.params is not None:  # the file's own overrides stay, under the candidate's
+        with args.params.open("rb") as fh:
+            from_file = tomllib.load(fh)
+        overrides = {g: {**from_file.get(g, {}), **overrides.get(g, {})} for g in {**from_file, **overrides}}
     (args.out / "best_params.toml").write_text(params_toml(
         overrides, f"experiments.identify_defaults: score {result.best.score:.4f} "
                    f"({result.evaluations} evaluations, seeds {list(args.seeds)}, "

@@ -108,3 +108,16 @@ def test_holdout_names_the_groups():
     assert exc.value.code == 2
     assert set(ident.GROUPS) == {"steps", "disturbance", "0.05_Nm_sine_0.2_Hz", "0.1_Nm_square_1_Hz",
                                  "10_Nm_sine_0.2_Hz"}
+
+
+def test_the_parameter_toml_keeps_what_the_params_file_set_beside_the_candidate(tmp_path, capsys):
+    base = tmp_path / "rig.toml"
+    base.write_text("[loadcell]\nreading_noise_n = 0.02\n\n[backlash]\nwidth_rad = 0.003\n")
+    out = tmp_path / "run"
+    ident.main(["--out", str(out), "--params", str(base), "--budget", "2", "--seeds", "0", "--duration", "0.05",
+                "--fast"])
+    best = load_params(out / "best_params.toml")
+    report = json.loads((out / "report.json").read_text())
+    assert best.loadcell.reading_noise_n == 0.02
+    width = next(p["value"] for p in report["parameters"] if p["path"] == "backlash.width_rad")
+    assert best.backlash.width_rad == width != 0.003

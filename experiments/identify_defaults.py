@@ -307,6 +307,7 @@ def report(space: Space, base: TestbedParams, best_x: np.ndarray, best: Evaluati
         sims = {s: p["rows"][k]["sim"] for s, p in seeds.items()}
         logs = [log_ratio(p["rows"][k]) for p in seeds.values()] if row["ratio"] is not None else []
         figures.append({"table": row["table"], "quantity": row["quantity"], "unit": row["unit"],
+                        "reading": row.get("reading", "primary"),
                         "paper": row["paper"], "group": row["group"], "fitted": primary(row) and row["group"]
                         != holdout, "sim": sims, "ratio": math.exp(float(np.mean(logs))) if logs else None})
     groups = {g: float(np.mean([group_scores(p["rows"]).get(g, math.nan) for p in seeds.values()]))
@@ -346,9 +347,10 @@ def markdown(rep: dict[str, Any]) -> str:
               for seed, v in rep["per_seed"].items()]
     seeds = list(rep["per_seed"])
     lines += ["", "## Figures, paper beside simulation", "",
-              "| table | quantity | unit | paper | " + " | ".join(f"sim seed {s}" for s in seeds)
-              + " | ratio (geometric mean) | fitted |", "|---|---|---|---|" + "---|" * len(seeds) + "---|---|"]
-    lines += [f"| {f['table']} | {f['quantity'].replace('|', chr(92) + '|')} | {f['unit']} | {num(f['paper'])} | "
+              "| table | quantity | reading | unit | paper | " + " | ".join(f"sim seed {s}" for s in seeds)
+              + " | ratio (geometric mean) | in the RMS |", "|---|---|---|---|---|" + "---|" * len(seeds) + "---|---|"]
+    lines += [f"| {f['table']} | {f['quantity'].replace('|', chr(92) + '|')} | {f['reading']} | {f['unit']} | "
+              f"{num(f['paper'])} | "
               + " | ".join(num(f["sim"][s]) for s in seeds) + f" | {num(f['ratio'])} | "
               f"{'yes' if f['fitted'] else 'no'} |" for f in rep["figures"]]
     lines += ["", "## RMS ln(sim/paper) by figure group", "", "| group | RMS ln ratio | held out |", "|---|---|---|"]

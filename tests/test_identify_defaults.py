@@ -121,3 +121,19 @@ def test_the_parameter_toml_keeps_what_the_params_file_set_beside_the_candidate(
     assert best.loadcell.reading_noise_n == 0.02
     width = next(p["value"] for p in report["parameters"] if p["path"] == "backlash.width_rad")
     assert best.backlash.width_rad == width != 0.003
+
+
+def test_each_group_held_out_in_turn_picks_the_candidate_best_without_it_and_scores_it_on_the_group():
+    def record(name, steps_ratio, disturbance_ratio):
+        rows = [{"table": "VI", "quantity": "q", "unit": "N·m", "paper": 1.0, "sim": x, "ratio": x, "group": g}
+                for g, x in (("steps", steps_ratio), ("disturbance", disturbance_ratio))]
+        behaviours = {"reached fraction 0.05 N·m": ("steps", 0.0)}
+        return {"overrides": {"name": name}, "seeds": {"0": {"rows": rows, "behaviours": behaviours}}}
+
+    records = [record("good steps", 1.0, math.e ** 2), record("good disturbance", math.e, 1.0),
+               {"overrides": {"name": "refused"}, "errors": ["ParameterError"]}]
+    held = ident.rotation(records)
+    assert held["steps"]["overrides"] == {"name": "good disturbance"}
+    assert held["steps"]["held_out_rms_log_ratio"] == pytest.approx(1.0) and held["steps"]["fit_score"] == 0.0
+    assert held["disturbance"]["overrides"] == {"name": "good steps"}
+    assert held["disturbance"]["held_out_rms_log_ratio"] == pytest.approx(2.0)

@@ -386,7 +386,8 @@ def markdown(rep: dict[str, Any]) -> str:
     lines += [f"| {g} | {v:.4f} | {'yes' if g == rep['holdout'] else 'no'} |" for g, v in rep["group_scores"].items()]
     lines += ["", "## Each group held out in turn (no refit)", "",
               "Among this run's evaluations, the candidate best on the score without the group, and its RMS "
-              "ln(sim/paper) on the group: a selection, not a fit that never saw the group (the search did).", "",
+              "ln(sim/paper) on the group: a selection, not a fit that never saw the group (the search saw every "
+              "group but the one --holdout names).", "",
               "| group | score without it | held-out RMS ln ratio | best candidate's RMS ln ratio on it |",
               "|---|---|---|---|"]
     lines += [f"| {g} | {v['fit_score']:.4f} | {v['held_out_rms_log_ratio']:.4f} | {rep['group_scores'][g]:.4f} |"

@@ -37,6 +37,7 @@ from __future__ import annotations
 
 import argparse
 import datetime
+import functools
 import multiprocessing as mp
 import os
 import platform
@@ -50,11 +51,11 @@ from sensor import calibration as cal
 
 SEED = 1
 CYCLES = 5
-AMPLITUDE_NM = 25.0          # Sec. IV-B: calibration range +-25 N m
+AMPLITUDE_NM = 25.0          # Sec. III-B: calibration range +-25 N m
 REFERENCE_NOISE_NM = 0.003
 HYSTERESIS_V = 0.002
 NOISE_RANGE_V = (1e-3, 5e-3)
-SENSITIVITY_RANGE_V_PER_NM = (0.024, 0.04)   # Sec. IV-B: 0.024-0.04 V/(N m)
+SENSITIVITY_RANGE_V_PER_NM = (0.024, 0.04)   # Sec. III-B: 0.024-0.04 V/(N m)
 CUBIC_FRACTION_AT_FULL_RANGE = 0.01
 ACTIVE_GAMMA = 1e4
 TIGHT_FACTOR = 1.01
@@ -188,11 +189,11 @@ def main(argv=None) -> None:
         e_min = cal.smallest_feasible_e_max(v, y)
         print(f"\nN = {n:.0e}: data {data_bytes / 1e6:.1f} MB, quiet {mask.mean():.1%}, "
               f"smallest feasible e_max {e_min:.4f} N m")
-        t_floor, theta_floor = best_time(lambda: floor_fit(v, y), args.repeats)
-        m_floor = peak_bytes(lambda: floor_fit(v, y))
+        t_floor, theta_floor = best_time(functools.partial(floor_fit, v, y), args.repeats)
+        m_floor = peak_bytes(functools.partial(floor_fit, v, y))
         rows = [("floor: normal equations (full A)", t_floor, m_floor, "")]
-        t_ls, ls = best_time(lambda: cal.fit_least_squares(v, y), args.repeats)
-        m_ls = peak_bytes(lambda: cal.fit_least_squares(v, y))
+        t_ls, ls = best_time(functools.partial(cal.fit_least_squares, v, y), args.repeats)
+        m_ls = peak_bytes(functools.partial(cal.fit_least_squares, v, y))
         dpred = np.max(np.abs(ls.predict(v) - _predict_chunked(theta_floor, v)))
         rows.append(("LS ours (fit_least_squares)", t_ls, m_ls,
                      f"{ls.diagnostics.solver}; |LS - floor| pred {dpred:.1e} N m"))
@@ -203,10 +204,10 @@ def main(argv=None) -> None:
         full_settings = [settings[1], settings[2]]
         fits = {}
         for gamma, e_max, e_label in settings:
-            t_qp, fit = best_time(lambda g=gamma, e=e_max: cal.fit_qp(
-                v, y, gamma=g, quiet_mask=mask, e_max_nm=e), args.repeats)
-            m_qp = peak_bytes(lambda g=gamma, e=e_max: cal.fit_qp(
-                v, y, gamma=g, quiet_mask=mask, e_max_nm=e))
+            t_qp, fit = best_time(functools.partial(
+                cal.fit_qp, v, y, gamma=gamma, quiet_mask=mask, e_max_nm=e_max), args.repeats)
+            m_qp = peak_bytes(functools.partial(
+                cal.fit_qp, v, y, gamma=gamma, quiet_mask=mask, e_max_nm=e_max))
             d = fit.diagnostics
             fits[(gamma, e_max)] = fit
             star = "*" if (gamma, e_max, e_label) in full_settings else " "

@@ -112,7 +112,8 @@ def main(argv: list[str] | None = None) -> None:
     print(f"  Plant.step only               {r['stepped']:9.0f} ticks/s   real-time factor {r['stepped'] / 1000:6.1f}")
     print(f"  pure mj_step(nstep)           {r['pure']:9.0f} ticks/s")
     print(f"  {PEER_ENV} env.step  {peer:9.0f} steps/s")
-    print(f"  Python overhead vs pure: run {r['pure'] / r['logged'] - 1:6.1%}, step {r['pure'] / r['stepped'] - 1:6.1%}")
+    print(f"  Python overhead vs pure: run {r['pure'] / r['logged'] - 1:6.1%}, "
+          f"step {r['pure'] / r['stepped'] - 1:6.1%}")
     print(f"  ratio to peer: run {r['logged'] / peer:.2f}x, step {r['stepped'] / peer:.2f}x")
     print(f"fidelity, control-relevant mode of the locked fixture (h vs h/{REFINEMENT}):")
     print(f"  natural frequency {coarse.natural_frequency_hz:8.2f} Hz vs {fine.natural_frequency_hz:8.2f} Hz "

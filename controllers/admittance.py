@@ -1,4 +1,4 @@
-"""Admittance controller of the paper (Sec. V-C, Eqs. 30-34): a virtual mass-damper(-spring) driven by the
+"""Admittance controller of the paper (Sec. IV-C, Eqs. 30-34): a virtual mass-damper(-spring) driven by the
 external torque, tracked by a PD loop on the motor's angle and velocity.
 
 Virtual dynamics (Eq. 30)::
@@ -42,7 +42,7 @@ from controllers.pi import PAPER_CONTROL_PERIOD_S, check_range
 from sim.motor_torque import CurrentToTorqueMap
 from sim.params import TestbedParams
 
-# Paper Sec. V-C: desired inertia, damping and stiffness of the virtual dynamics.
+# Paper Sec. IV-C: desired inertia, damping and stiffness of the virtual dynamics.
 PAPER_DESIRED_INERTIA_KGM2 = 0.03
 PAPER_DESIRED_DAMPING_NMS_PER_RAD = 0.6
 PAPER_DESIRED_STIFFNESS_NM_PER_RAD = 0.0

@@ -1,4 +1,4 @@
-"""PI torque controller with reference feed-forward and back-calculation anti-windup (paper Sec. V).
+"""PI torque controller with reference feed-forward and back-calculation anti-windup (paper Sec. IV).
 
 At each control tick k (period T_s)::
 
@@ -16,7 +16,7 @@ Interpretation of the paper's two modes (kept throughout torquebed)
 -------------------------------------------------------------------
 The GIM8108 takes torque commands, which its driver turns into current with its own current loop. The paper
 compares "using only the motor torque command" with "using the proposed sensor as an additional feedback
-signal" (Sec. V). We read this as one controller structure, the reference fed forward as the driver's torque
+signal" (Sec. IV). We read this as one controller structure, the reference fed forward as the driver's torque
 command (K_ff = 1) plus the PI acting on a measured torque:
 
 * ``current`` feedback ("current sensor only"): the measured torque is the driver's current-based estimate
@@ -42,7 +42,7 @@ from dataclasses import dataclass
 from sim.motor_torque import CurrentToTorqueMap
 from sim.params import TestbedParams, range_text
 
-# Paper Sec. V: PI gains and back-calculation gain of the torque loop, 1 kHz control cycle.
+# Paper Sec. IV: PI gains and back-calculation gain of the torque loop, 1 kHz control cycle.
 PAPER_KP = 0.12  # [-] N·m command per N·m error
 PAPER_KI_PER_S = 12.0  # [1/s]
 PAPER_ANTIWINDUP_PER_S = 5.0  # [1/s]
@@ -155,7 +155,7 @@ FEEDBACK_KEYS = {"current": "tau_current_estimate", "sensor": "tau_sensor"}  # f
 
 
 def paper_pi(params: TestbedParams, feedback: str) -> PITorqueController:
-    """The paper's PI torque controller (gains of Sec. V) closing on the ``feedback`` measurement, limited to
+    """The paper's PI torque controller (gains of Sec. IV) closing on the ``feedback`` measurement, limited to
     the driver's current limit, at the plant's control period: the default controller of the torque tests."""
     return PITorqueController(output_limit_nm=CurrentToTorqueMap.from_params(params).command_limit_nm,
                               period_s=params.simulation.control_period_s, measured=FEEDBACK_KEYS[feedback])

@@ -11,9 +11,9 @@ error of 0.0685 N·m above the peak error of 0.0505 N·m. If "peak" meant max |y
 (max |e| >= RMS e). Two peak-based readings remain, and both can give that pair: |max y - max r| (the
 highest output against the reference's crest) and its two-sided form, max(|max y - max r|, |min y - min r|).
 An output offset by +0.0505 N·m and lagging the sine by 82° (between 0.0005 and 0.1005 N·m: one-sided, as
-Sec. V-B describes) gives RMS 0.0685 and 0.0505 under both (``tests/test_controllers_tracking.py``); the
+Sec. IV-B describes) gives RMS 0.0685 and 0.0505 under both (``tests/test_controllers_tracking.py``); the
 other five pairs have peak > RMS and fit either. The paper ties
-the figure to the crest ("the peak error is influenced by overshoot", Sec. V-B), so the one-sided form is
+the figure to the crest ("the peak error is influenced by overshoot", Sec. IV-B), so the one-sided form is
 the one compared with the paper. The trough's miss |min y - min r| (``trough_nm``) and max |e|
 (``max_abs_nm``) are reported beside it, not compared: the two-sided figure is max(peak, trough).
 """
@@ -89,4 +89,5 @@ def run_tracking(params: TestbedParams, plant: Plant, controller: Controller, fe
                     progress_label=label,
                     meta={"feedback": feedback, "seed": seed,
                           "loadcell_reading_noise_n": params.loadcell.reading_noise_n,
+                          "loadcell_amplifier_bandwidth_hz": params.loadcell.amplifier_bandwidth_hz,
                           "torque_saturation_per_nm": params.motor.torque_saturation_per_nm, **(meta or {})})

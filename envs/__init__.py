@@ -1,8 +1,9 @@
 """Gymnasium environments on the simulated testbed.
 
 ``register_envs()`` registers :data:`ENV_ID` with Gymnasium; ``import torquebed`` calls it, so after that
-``gymnasium.make("torquebed/TorqueTracking-v0")`` works. Without importing anything first, use Gymnasium's
-module prefix: ``gymnasium.make("torquebed:torquebed/TorqueTracking-v0")``.
+``gymnasium.make("torquebed/TorqueTracking-v0")`` works, and ``gymnasium.make_vec("torquebed/TorqueTracking-v0",
+num_envs=N)`` gives N environments stepped together (:mod:`envs.torque_tracking_vector`). Without importing
+anything first, use Gymnasium's module prefix: ``gymnasium.make("torquebed:torquebed/TorqueTracking-v0")``.
 
 Importing this module is light; ``register_envs()`` imports Gymnasium (~0.2 s), and the environment itself is
 :mod:`envs.torque_tracking`.
@@ -12,6 +13,7 @@ from __future__ import annotations
 
 ENV_ID = "torquebed/TorqueTracking-v0"
 ENTRY_POINT = "envs.torque_tracking:TorqueTrackingEnv"
+VECTOR_ENTRY_POINT = "envs.torque_tracking_vector:TorqueTrackingVectorEnv"
 
 
 def register_envs() -> None:
@@ -19,4 +21,4 @@ def register_envs() -> None:
     from gymnasium.envs.registration import register, registry
 
     if ENV_ID not in registry:
-        register(id=ENV_ID, entry_point=ENTRY_POINT)
+        register(id=ENV_ID, entry_point=ENTRY_POINT, vector_entry_point=VECTOR_ENTRY_POINT)

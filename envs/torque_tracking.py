@@ -4,6 +4,7 @@ tick of the loop the experiments run (:class:`sim.run.ControlLoop`), opened for 
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 from typing import Any
 
 import gymnasium as gym
@@ -17,7 +18,7 @@ from sensor.readout import factory_calibration
 from sim.measurements import BoardThermometer, CurrentEstimate, LoadCell, MotorEncoder, MotorVelocity
 from sim.motor_torque import CurrentToTorqueMap
 from sim.params import TestbedParams
-from sim.plant import Plant, SimulationDiverged
+from sim.plant import Plant, SimulationDiverged, clip
 from sim.run import ControlLoop
 
 FIXTURES = ("locked", "free")
@@ -61,18 +62,19 @@ class TorqueTrackingEnv(gym.Env):
     | Num | Observation | Unit | Source |
     |-----|-------------|------|--------|
     | 0 | torque reference of this tick | N·m | the task's profile |
-    | 1 | joint torque sensor reading | N·m | photo-reflector array through its factory calibration (noise, ADC, hysteresis, drift) |
+    | 1 | joint torque sensor reading | N·m | photo-reflectors, factory calibration (noise, ADC, hysteresis, drift) |
     | 2 | motor angle, output side | rad | encoder |
     | 3 | motor velocity, output side | rad/s | driver |
-    | 4 | driver's current-based torque estimate | N·m | N·K_t·i through the inverse current-to-torque map (``sim.measurements.CurrentEstimate``) |
+    | 4 | driver's current-based torque estimate | N·m | N·K_t·i, inverse current map (``CurrentEstimate``) |
     | 5 | sensor board temperature | °C | TMP117 reading |
 
     The load-cell torque is not observed (it is what the reward grades); it is in ``info``.
 
     ## Rewards
-    Per step k, with y_k the load-cell torque at the end of the tick (force x lever length, with the load
-    cell's reading noise ``loadcell.reading_noise_n`` unless ``feedback_noise=False``; in the 'free' fixture,
-    which has no load cell, the true flexure torque), r_k the reference of the tick, u_k the clipped command,
+    Per step k, with y_k the load-cell torque at the end of the tick (force x lever length through the
+    amplifier's low-pass ``loadcell.amplifier_bandwidth_hz``, with the load cell's reading noise
+    ``loadcell.reading_noise_n`` unless ``feedback_noise=False``; in the 'free' fixture, which has no load
+    cell, the true flexure torque), r_k the reference of the tick, u_k the clipped command,
     s the episode's reward scale (largest |reference|, at least 0.01 N·m) and u_max the driver's command
     limit (the action box)::
 
@@ -97,15 +99,17 @@ class TorqueTrackingEnv(gym.Env):
 
     ## Arguments
     ``gymnasium.make("torquebed/TorqueTracking-v0", **kwargs)`` after ``import torquebed`` (or
-    ``gymnasium.make("torquebed:torquebed/TorqueTracking-v0")``).
+    ``gymnasium.make("torquebed:torquebed/TorqueTracking-v0")``); ``gymnasium.make_vec(..., num_envs=N,
+    **kwargs)`` steps N of them together (:class:`envs.torque_tracking_vector.TorqueTrackingVectorEnv`, which
+    also takes ``nthread``).
 
     | Parameter | Type | Default | Description |
     |-----------|------|---------|-------------|
-    | ``task`` | str | ``"any"`` | reference profile: ``"step"``, ``"sine"``, ``"square"``, ``"random"`` or ``"any"`` (one drawn per episode) |
+    | ``task`` | str | ``"any"`` | ``"step"``, ``"sine"``, ``"square"``, ``"random"`` or ``"any"`` (one per episode) |
     | ``episode_duration_s`` | float | 2.0 | episode length [s] (whole control ticks) |
     | ``fixture`` | str | ``"locked"`` | ``"locked"``: lever on the load cell; ``"free"``: lever turns freely |
     | ``feedback_noise`` | bool | True | sensor channel noise and load-cell reading noise on / off |
-    | ``domain_randomization`` | bool | False | draw plant and sensor parameters per episode (:mod:`envs.randomization`) |
+    | ``domain_randomization`` | bool | False | plant and sensor parameters per episode (:mod:`envs.randomization`) |
     | ``randomization_scale`` | float | 0.2 | relative spread s of the randomisation, in [0, 0.5] |
     | ``ctrl_cost_weight`` | float | 0.0 | weight of the control cost in the reward |
     | ``params`` | TestbedParams | defaults | nominal parameter set |
@@ -143,8 +147,8 @@ class TorqueTrackingEnv(gym.Env):
         self.feedback_noise, self.domain_randomization = bool(feedback_noise), bool(domain_randomization)
         self.randomization_scale, self.ctrl_cost_weight = float(randomization_scale), float(ctrl_cost_weight)
         self.render_mode = None
-        self._box_limit_nm = CurrentToTorqueMap.from_params(self.nominal_params).command_limit_nm
-        self.action_space = spaces.Box(-self._box_limit_nm, self._box_limit_nm, (1,), np.float32)
+        self.box_limit_nm = CurrentToTorqueMap.from_params(self.nominal_params).command_limit_nm
+        self.action_space = spaces.Box(-self.box_limit_nm, self.box_limit_nm, (1,), np.float32)
         self.observation_space = spaces.Box(-np.inf, np.inf, (len(OBSERVATION_NAMES),), np.float64)
         # The nominal unit's factory calibration (cached per process; ~5 s the first time).
         self._calibration = factory_calibration(self.nominal_params)
@@ -158,38 +162,28 @@ class TorqueTrackingEnv(gym.Env):
     # ------------------------------------------------------------------ gymnasium API
     def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None):
         super().reset(seed=seed)
-        opts = self._check_options(options)
-        rng = self.np_random
-        if self.domain_randomization:
-            self.params = randomize_params(self.nominal_params, rng, self.randomization_scale)
+        draw = draw_episode(self, self.np_random, check_options(options, self.nominal_params), self.params)
+        self.reference = draw.reference
+        if draw.params is not self.params:
+            self.params = draw.params
             self.plant = Plant(self.params, self.fixture)
-        task = opts.get("task", self.task)
-        if task == "any":
-            task = TASKS[int(rng.integers(len(TASKS)))]
-        self.reference = make_reference(task, self.n_steps, self.dt, rng, opts.get("amplitude_nm"),
-                                        opts.get("frequency_hz"))
-        sensor_params = self.params if self.feedback_noise else self.params.replace(
-            photoreflector={"noise_min_v": 0.0, "noise_max_v": 0.0})
-        sensor = make_feedback("sensor", sensor_params, int(rng.integers(2**31)), self._calibration)
+        sensor = make_feedback("sensor", draw.sensor_params(self.feedback_noise), draw.sensor_seed, self._calibration)
         self._loop = ControlLoop(self.plant, (sensor, MotorEncoder(), MotorVelocity(), CurrentEstimate(),
                                               BoardThermometer()))
         self._loop.reset()
-        loadcell_rng = np.random.default_rng(int(rng.integers(2**63)))
-        self._loadcell = LoadCell(self.params, loadcell_rng if self.feedback_noise else None)
-        # what the driver applies: the box, or less if this episode's (randomised) motor reaches its peak sooner
-        self._command_limit = min(self._box_limit_nm, CurrentToTorqueMap.from_params(self.params).command_limit_nm)
+        self._loadcell = LoadCell(self.params, draw.loadcell_rng if self.feedback_noise else None)
+        self._command_limit = draw.command_limit_nm
         self._scale = self.reference.scale_nm
         self._reference_nm = self.reference.values_nm.tolist()  # Python floats: cheaper to index per step
         self.plant.reset(backlash_side=self.reference.first_sign)
         self._k = 0
         self._observe()
-        return self._obs.copy(), {"task": task, "amplitude_nm": self.reference.amplitude_nm,
-                                  "frequency_hz": self.reference.frequency_hz, "reward_scale_nm": self._scale}
+        return self._obs.copy(), draw.info()
 
     def step(self, action):
         if self.reference is None:
             raise RuntimeError("call reset() before step()")
-        command = min(max(self._action_value(action), -self._command_limit), self._command_limit)
+        command = clip(self._action_value(action), -self._command_limit, self._command_limit)
         ref = self._reference_nm[self._k]
         plant = self.plant
         try:
@@ -199,8 +193,7 @@ class TorqueTrackingEnv(gym.Env):
         output = self._loadcell.read(plant)
         self._k += 1
         error = output - ref
-        u = command / self._box_limit_nm
-        reward = -(error / self._scale) ** 2 - self.ctrl_cost_weight * u * u
+        reward = tracking_reward(error, self._scale, command, self.box_limit_nm, self.ctrl_cost_weight)
         truncated = self._k >= self.n_steps
         self._observe()
         info = {"loadcell_torque_nm": output, "reference_nm": ref, "tracking_error_nm": error,
@@ -231,7 +224,7 @@ class TorqueTrackingEnv(gym.Env):
     def _observe(self) -> None:
         """The observation vector of OBSERVATION_NAMES from the loop's measurements."""
         observed = self._loop.observe(self._reference_nm[min(self._k, self.n_steps - 1)])  # last one held at the end
-        self._obs[:] = [observed[name] for name in OBSERVATION_NAMES]
+        observation_into(observed, self._obs)
 
     @property
     def plant(self) -> Plant:
@@ -249,28 +242,90 @@ class TorqueTrackingEnv(gym.Env):
         """The eight photo-reflector voltages [V] of the last observation (a new array)."""
         return self._loop.measurements[0].voltages_v
 
-    def _check_options(self, options: dict[str, Any] | None) -> dict[str, Any]:
-        if options is None:
-            return {}
-        if not isinstance(options, dict):
-            raise ValueError(f"options must be a dict with keys among {', '.join(RESET_OPTIONS)}, got {options!r}")
-        for key in options:
-            if key not in RESET_OPTIONS:
-                raise ValueError(f"reset option {key!r} is unknown: valid options are {', '.join(RESET_OPTIONS)}")
-        opts = dict(options)
-        if "task" in opts and opts["task"] not in TASKS:
-            raise ValueError(f"reset option task = {opts['task']!r}: valid values are {', '.join(TASKS)}")
-        peak = self.nominal_params.motor.peak_torque_nm
-        if "amplitude_nm" in opts:
-            a = opts["amplitude_nm"]
-            if not (isinstance(a, (int, float)) and np.isfinite(a) and 0 < abs(a) <= peak):
-                raise ValueError(f"reset option amplitude_nm = {a!r}: valid range 0 < |amplitude_nm| <= {peak:g} "
-                                 "N·m (the motor's peak torque)")
-            opts["amplitude_nm"] = float(a)
-        if "frequency_hz" in opts:
-            f = opts["frequency_hz"]
-            nyquist = 0.5 / self.dt
-            if not (isinstance(f, (int, float)) and np.isfinite(f) and 0 < f < nyquist):
-                raise ValueError(f"reset option frequency_hz = {f!r}: valid range (0, {nyquist:g}) Hz")
-            opts["frequency_hz"] = float(f)
-        return opts
+
+@dataclass(frozen=True)
+class EpisodeDraw:
+    """What an episode's reset draws from the environment's generator, in this order: the parameter set
+    (domain randomisation), the task, the reference, the sensor's noise seed and the load cell's generator."""
+
+    params: TestbedParams
+    task: str
+    reference: Reference
+    sensor_seed: int
+    loadcell_rng: np.random.Generator
+    command_limit_nm: float  # what the driver applies: the action box, or less if this motor peaks sooner
+
+    def sensor_params(self, feedback_noise: bool) -> TestbedParams:
+        """The sensor's parameters: the episode's, without channel noise unless ``feedback_noise``."""
+        return self.params if feedback_noise else self.params.replace(
+            photoreflector={"noise_min_v": 0.0, "noise_max_v": 0.0})
+
+    def info(self) -> dict[str, Any]:
+        """The reset's info."""
+        r = self.reference
+        return {"task": self.task, "amplitude_nm": r.amplitude_nm, "frequency_hz": r.frequency_hz,
+                "reward_scale_nm": r.scale_nm}
+
+
+def draw_episode(env: TorqueTrackingEnv, rng: np.random.Generator, options: dict[str, Any],
+                 params: TestbedParams) -> EpisodeDraw:
+    """Draw one episode with ``env``'s settings (nominal_params, domain_randomization, randomization_scale, task,
+    n_steps, dt, box_limit_nm) from ``rng``, with checked options; ``params`` is kept without randomisation."""
+    if env.domain_randomization:
+        params = randomize_params(env.nominal_params, rng, env.randomization_scale)
+    task = options.get("task", env.task)
+    if task == "any":
+        task = TASKS[int(rng.integers(len(TASKS)))]
+    reference = make_reference(task, env.n_steps, env.dt, rng, options.get("amplitude_nm"),
+                               options.get("frequency_hz"))
+    sensor_seed = int(rng.integers(2**31))
+    loadcell_rng = np.random.default_rng(int(rng.integers(2**63)))
+    limit = min(env.box_limit_nm, CurrentToTorqueMap.from_params(params).command_limit_nm)
+    return EpisodeDraw(params, task, reference, sensor_seed, loadcell_rng, limit)
+
+
+def tracking_reward(error_nm, scale_nm, command_nm, box_limit_nm, ctrl_cost_weight):
+    """-((y - r) / s)² - w·(u / u_max)² of the tracking error y - r [N·m] (floats, or arrays across
+    environments)."""
+    u = command_nm / box_limit_nm
+    e = error_nm / scale_nm
+    # a float's ** 2 is libm's pow, as numpy's float_power; numpy's ** 2 on arrays is e·e, at times 1 ulp apart
+    return -(e ** 2 if isinstance(e, float) else np.float_power(e, 2.0)) - ctrl_cost_weight * u * u
+
+
+def observation_into(observed: dict, out: np.ndarray) -> None:
+    """Write the observation vector of OBSERVATION_NAMES from a loop's measurements into ``out``: (6,) from
+    floats, or (N, 6) from (N,) arrays."""
+    if out.ndim == 1:
+        out[:] = [observed[name] for name in OBSERVATION_NAMES]
+    else:
+        for j, name in enumerate(OBSERVATION_NAMES):
+            out[:, j] = observed[name]
+
+
+def check_options(options: dict[str, Any] | None, nominal_params: TestbedParams) -> dict[str, Any]:
+    """The reset options, checked (ValueError naming the option and its valid values or range)."""
+    if options is None:
+        return {}
+    if not isinstance(options, dict):
+        raise ValueError(f"options must be a dict with keys among {', '.join(RESET_OPTIONS)}, got {options!r}")
+    for key in options:
+        if key not in RESET_OPTIONS:
+            raise ValueError(f"reset option {key!r} is unknown: valid options are {', '.join(RESET_OPTIONS)}")
+    opts = dict(options)
+    if "task" in opts and opts["task"] not in TASKS:
+        raise ValueError(f"reset option task = {opts['task']!r}: valid values are {', '.join(TASKS)}")
+    peak = nominal_params.motor.peak_torque_nm
+    if "amplitude_nm" in opts:
+        a = opts["amplitude_nm"]
+        if not (isinstance(a, (int, float)) and np.isfinite(a) and 0 < abs(a) <= peak):
+            raise ValueError(f"reset option amplitude_nm = {a!r}: valid range 0 < |amplitude_nm| <= {peak:g} "
+                             "N·m (the motor's peak torque)")
+        opts["amplitude_nm"] = float(a)
+    if "frequency_hz" in opts:
+        f = opts["frequency_hz"]
+        nyquist = 0.5 / nominal_params.simulation.control_period_s
+        if not (isinstance(f, (int, float)) and np.isfinite(f) and 0 < f < nyquist):
+            raise ValueError(f"reset option frequency_hz = {f!r}: valid range (0, {nyquist:g}) Hz")
+        opts["frequency_hz"] = float(f)
+    return opts

@@ -1,4 +1,4 @@
-"""Admittance control of the free lever pushed by a scripted hand (paper Sec. V-C, Eqs. 30-34, Fig. 13).
+"""Admittance control of the free lever pushed by a scripted hand (paper Sec. IV-C, Eqs. 30-34, Fig. 13).
 
     python -m experiments.admittance [--seed N] [--duration S] [--json PATH] [--plot DIR] [--params TOML]
 

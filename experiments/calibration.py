@@ -1,4 +1,4 @@
-"""Sensor calibration and evaluation (paper Sec. IV-A/B, Tables III-IV, the LS/QP resolution comparison).
+"""Sensor calibration and evaluation (paper Sec. III-A/B, Tables III-IV, the LS/QP resolution comparison).
 
     python -m experiments.calibration [--seed N] [--json PATH] [--plot DIR] [--params TOML]
 
@@ -39,7 +39,7 @@ from sim.figures import moving_mean, save_figure
 from sim.params import TestbedParams
 
 TABLE = "calibration"
-# (figure name, table, quantity, unit, paper value); paper Tables III, IV and Sec. IV-B.
+# (figure name, table, quantity, unit, paper value); paper Tables III, IV and Sec. III-B.
 PAPER_FIGURES: tuple[tuple[str, str, str, str, float], ...] = (
     ("max_error_pct_fs", "III", "max error", "% FS", 0.0830),
     ("rms_error_nm", "III", "RMS error", "N·m", 0.0266),
@@ -48,11 +48,11 @@ PAPER_FIGURES: tuple[tuple[str, str, str, str, float], ...] = (
     ("repeatability_pct_fs", "IV", "repeatability", "% FS", 0.0849),
     ("crosstalk_tx_pct_fs", "IV", "crosstalk T_x", "% FS", 0.148),
     ("crosstalk_ty_pct_fs", "IV", "crosstalk T_y", "% FS", 0.126),
-    ("ls_std_nm", "IV-B resolution", "LS std", "N·m", 0.0160),
-    ("ls_resolution_3sigma_nm", "IV-B resolution", "LS 3-sigma resolution", "N·m", 0.0480),
-    ("qp_std_nm", "IV-B resolution", "QP std", "N·m", 0.00746),
-    ("qp_resolution_3sigma_nm", "IV-B resolution", "QP 3-sigma resolution", "N·m", 0.0224),
-    ("qp_improvement", "IV-B resolution", "QP improvement over LS", "x", 2.14),
+    ("ls_std_nm", "III-B resolution", "LS std", "N·m", 0.0160),
+    ("ls_resolution_3sigma_nm", "III-B resolution", "LS 3-sigma resolution", "N·m", 0.0480),
+    ("qp_std_nm", "III-B resolution", "QP std", "N·m", 0.00746),
+    ("qp_resolution_3sigma_nm", "III-B resolution", "QP 3-sigma resolution", "N·m", 0.0224),
+    ("qp_improvement", "III-B resolution", "QP improvement over LS", "x", 2.14),
 )
 
 
@@ -88,9 +88,9 @@ def run_calibration(params: TestbedParams | None = None, seed: int = 0) -> Calib
     return CalibrationExperiment(evaluation, comparison_rows(evaluation.figures, PAPER_FIGURES))
 
 
-# Paper Sec. IV-B: the peaks of Fig. 7(c) and (d), the deviation curves behind Table III's 0.111 and 0.139 % FS.
+# Paper Sec. III-B: the peaks of Fig. 7(c) and (d), the deviation curves behind Table III's 0.111 and 0.139 % FS.
 PAPER_FIG7_PEAK_PCT_FS = {"nonlinearity": 0.1106, "hysteresis": 0.1389}
-PAPER_CROSSTALK_VOLTAGE_V = 0.06  # Sec. IV-B: channel voltage change under 25 N·m of T_x or T_y (Fig. 8(c)-(d))
+PAPER_CROSSTALK_VOLTAGE_V = 0.06  # Sec. III-B: channel voltage change under 25 N·m of T_x or T_y (Fig. 8(c)-(d))
 MAGNIFIED_HALF_WIDTH_NM = 0.3  # [N·m] half width of Fig. 7(b)'s window (the paper magnifies about -0.3 N·m)
 CROSSTALK_PLOT_MEAN_S = 0.1  # [s] window of the running mean drawn over the raw crosstalk output (display only)
 
@@ -271,7 +271,7 @@ def plot_crosstalk_noise(ev: SensorEvaluation, out_dir: Path) -> Path:
                     f"{paper_value(f'{name}_std_nm')}),\n3σ {res3:.4f} N·m (paper "
                     f"{paper_value(f'{name}_resolution_3sigma_nm')})")
     ax[1, 2].sharey(ax[0, 2])
-    fig.suptitle("Crosstalk and resolution (paper Fig. 8(b)-(f), Table IV, Sec. IV-B)", fontsize=11)
+    fig.suptitle("Crosstalk and resolution (paper Fig. 8(b)-(f), Table IV, Sec. III-B)", fontsize=11)
     return save_figure(fig, out_dir, "calibration_crosstalk_noise.png")
 
 

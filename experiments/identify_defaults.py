@@ -97,7 +97,7 @@ RATIO_FLOOR = 1e-2  # [-] a figure the simulation does not produce (None, <= 0) 
 GROUPS = {"steps": "the 0.05, 0.1 and 0.2 N·m steps (Table VI) and the reached fractions",
           "disturbance": "the disturbance test (Table VI) and where regulation is lost or held",
           **{w.name.replace(" ", "_").replace("·", ""): f"the {w.name} test (Table VII)" for w in WAVEFORMS}}
-# Behaviour bands (paper Sec. V): value -> [lo, hi].
+# Behaviour bands (paper Sec. IV, the motor experiments): value -> [lo, hi].
 BANDS = {**{f"reached fraction {s:g} N·m": (f - 0.1, f + 0.1) for s, f in PAPER_REACHED_FRACTION.items()},
          "current-feedback regulation lost at [N·m]": (0.2, 0.45),
          "sensor-feedback regulation held to [N·m]": (PAPER_DISTURBANCE_LOST_NM["sensor"], math.inf),

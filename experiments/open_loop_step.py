@@ -5,7 +5,7 @@
 
 The GIM8108 driver closes its own current loop, so a torque command is what a controller built on the
 current-based estimate ends up asking for: the load cell shows what the gear lets through. The paper's
-current-feedback steps reached about 30, 40 and 65 % of 0.05, 0.1 and 0.2 N·m (Sec. V-A).
+current-feedback steps reached about 30, 40 and 65 % of 0.05, 0.1 and 0.2 N·m (Sec. IV-A).
 """
 
 from __future__ import annotations
@@ -95,7 +95,7 @@ def format_result(result: OpenLoopStepResult) -> str:
         ratio = f"{s.reached_fraction / s.paper_reached_fraction:6.2f}" if s.paper_reached_fraction else f"{'-':>6s}"
         lines.append(f"{s.command_nm:14.3f} {s.loadcell_mean_nm:16.4f} {s.reached_fraction:8.0%} {paper} {ratio} "
                      f"{s.rms_error_nm:14.4f} {s.current_estimate_mean_nm:19.4f}")
-    lines.append("paper: current-feedback PI steps of Sec. V-A (mean output / reference)")
+    lines.append("paper: current-feedback PI steps of Sec. IV-A (mean output / reference)")
     return "\n".join(lines)
 
 
@@ -136,7 +136,8 @@ def main(argv: list[str] | None = None) -> None:
     result = run_open_loop_step(params, tuple(args.steps), args.duration)
     print(format_result(result))
     write_outputs(args, result.to_dict(), lambda directory: plot_result(result, directory))
-    record_rerun(args, {f"open-loop step {s.command_nm:g} N·m": g for s, g in zip(result.steps, result.logs)}, params)
+    logs = {f"open-loop step {s.command_nm:g} N·m": g for s, g in zip(result.steps, result.logs, strict=True)}
+    record_rerun(args, logs, params)
 
 
 if __name__ == "__main__":

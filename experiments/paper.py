@@ -36,10 +36,10 @@ from experiments.step import PAPER_REACHED_FRACTION
 from sim.characterize import measure_breakaway
 from sim.params import TestbedParams
 
-PAPER_BREAKAWAY_NM = 0.13  # paper Sec. V
+PAPER_BREAKAWAY_NM = 0.13  # paper Sec. IV
 ONE_SIDED_SHARE = 0.8  # [-] >= 80 % of the output's impulse on one side of zero counts as one-sided
 # [-] actuation at all: mean |output| at least a quarter of mean |reference|. Below the paper's smallest
-# current-feedback step fraction (30 %, Sec. V-A): a lower output is a gear that never broke free, and the sign
+# current-feedback step fraction (30 %, Sec. IV-A): a lower output is a gear that never broke free, and the sign
 # share of a stuck output is its noise and offset, not one- or two-sided actuation.
 ACTUATION_LEVEL = 0.25
 

@@ -189,7 +189,7 @@ def plot_card(card: PlantCard, params: TestbedParams, directory: Path) -> Path:
     ax_brk.plot(ramp["tau_cmd"], ramp["qd_motor"], "C0")
     ax_brk.axvline(breakaway_nm, color="C2", ls=":", label=f"measured {breakaway_nm:.3f} N·m")
     ax_brk.axvline(params.friction.breakaway_torque_nm, color="C3", ls="--", lw=0.8,
-                   label=f"parameter {params.friction.breakaway_torque_nm:g} N·m (paper Sec. V)")
+                   label=f"parameter {params.friction.breakaway_torque_nm:g} N·m (paper Sec. IV)")
     ax_brk.set(xlabel="torque command [N·m]", ylabel="motor velocity, output side [rad/s]",
                title="breakaway ramp, free lever\n(velocity sustained > 100 ms)")
     ax_brk.legend(fontsize=8)

@@ -74,11 +74,11 @@ class Experiment:
 
 
 EXPERIMENTS: dict[str, Experiment] = {e.name: e for e in (
-    Experiment("calibration", "Sec. IV-B, Tables III-IV", run_calibration, shortens=False, controlled=False),
-    Experiment("thermal", "Sec. IV-C, Table V", run_thermal, shortens=False, controlled=False),
-    Experiment("step", "Sec. V-A, Table VI", run_step),
-    Experiment("sinusoid", "Sec. V-B, Table VII", run_sinusoid),
-    Experiment("admittance", "Sec. V-C, Fig. 13", run_admittance),
+    Experiment("calibration", "Sec. III-B, Tables III-IV", run_calibration, shortens=False, controlled=False),
+    Experiment("thermal", "Sec. III-C, Table V", run_thermal, shortens=False, controlled=False),
+    Experiment("step", "Sec. IV-A, Table VI", run_step),
+    Experiment("sinusoid", "Sec. IV-B, Table VII", run_sinusoid),
+    Experiment("admittance", "Sec. IV-C, Fig. 13", run_admittance),
 )}
 
 # Every command (python -m experiments.<name>) -> what it is for, in the README's order.

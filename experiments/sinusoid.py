@@ -1,4 +1,4 @@
-"""Sine and square-wave torque tracking on the locked testbed, current vs sensor feedback (paper Sec. V-B,
+"""Sine and square-wave torque tracking on the locked testbed, current vs sensor feedback (paper Sec. IV-B,
 Table VII, Fig. 12).
 
     python -m experiments.sinusoid [--feedback {current,sensor,both}] [--seed N] [--duration S]
@@ -57,7 +57,7 @@ from sim.runlog import RunLog
 
 TEST_DURATION_S = 10.0  # [s] two periods of the 0.2 Hz sines, ten of the square wave (assumed)
 WARMUP_PERIODS = 1  # [-] reference periods run before the evaluated window
-PRECONDITION_NM = 0.5  # [N·m] the torque of the preceding test (the 0.5 N·m regulation of Sec. V-A)
+PRECONDITION_NM = 0.5  # [N·m] the torque of the preceding test (the 0.5 N·m regulation of Sec. IV-A)
 PRECONDITION_HOLD_S = 0.5  # [s]
 PRECONDITION_RAMP_S = 0.5  # [s] the command ramped back to zero (an operator ending the test, assumed)
 PRECONDITION_RELEASE_S = 0.5  # [s] command zero; the gear settles where its friction holds it

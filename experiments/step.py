@@ -1,4 +1,4 @@
-"""Torque steps and disturbance rejection on the locked testbed, current vs sensor feedback (paper Sec. V-A,
+"""Torque steps and disturbance rejection on the locked testbed, current vs sensor feedback (paper Sec. IV-A,
 Table VI, Fig. 11).
 
     python -m experiments.step [--feedback {current,sensor,both}] [--seed N] [--duration S]
@@ -62,9 +62,9 @@ from sim.runlog import RunLog
 PAPER_STEP_RMS_NM = {("current", 0.05): 0.0329, ("current", 0.1): 0.0566, ("current", 0.2): 0.0685,
                      ("sensor", 0.05): 0.0026, ("sensor", 0.1): 0.0026, ("sensor", 0.2): 0.0025}
 PAPER_DISTURBANCE_RMS_NM = {"current": 0.1893, "sensor": 0.0058}
-# Paper Sec. V-A: current feedback reaches ~30, 40, 65 % of the steps (mean values).
+# Paper Sec. IV-A: current feedback reaches ~30, 40, 65 % of the steps (mean values).
 PAPER_REACHED_FRACTION = {0.05: 0.30, 0.1: 0.40, 0.2: 0.65}
-# Paper Sec. V-A: disturbance at which regulation was lost (current) / still held (sensor) [N·m].
+# Paper Sec. IV-A: disturbance at which regulation was lost (current) / still held (sensor) [N·m].
 PAPER_DISTURBANCE_LOST_NM = {"current": 0.3, "sensor": 2.0}
 
 STEP_HOLD_S = 5.0  # [s] step held
@@ -130,7 +130,7 @@ class StepResult:
             label = f"{c.name}, {c.feedback} feedback"
             out.append(paper_row("VI", f"{label}: RMS error", "N·m", c.paper_rms_nm, c.error.rms_nm))
             if c.name.startswith("step") and c.feedback == "current":
-                out.append(paper_row("V-A text", f"{label}: reached fraction (mean)", "1",
+                out.append(paper_row("IV-A text", f"{label}: reached fraction (mean)", "1",
                                      PAPER_REACHED_FRACTION[c.reference_nm], c.error.reached_fraction))
             if c.name == "disturbance":
                 out.append(_disturbance_row(c, label))
@@ -150,10 +150,10 @@ def _disturbance_row(c: StepCase, label: str) -> dict:
     disturbance began (a run too short to reach it) has no figure."""
     lost = c.disturbance_at_loss_nm
     if lost is None:
-        row = paper_row("V-A text", f"{label}: disturbance regulation held up to (the test's end)", "N·m",
+        row = paper_row("IV-A text", f"{label}: disturbance regulation held up to (the test's end)", "N·m",
                         PAPER_DISTURBANCE_LOST_NM[c.feedback], c.disturbance_max_nm)
         return {**row, "ratio": None}
-    return paper_row("V-A text", f"{label}: disturbance regulation lost at", "N·m",
+    return paper_row("IV-A text", f"{label}: disturbance regulation lost at", "N·m",
                      PAPER_DISTURBANCE_LOST_NM[c.feedback], lost if lost > 0.0 else None)
 
 

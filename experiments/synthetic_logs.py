@@ -107,7 +107,7 @@ def baseline_rig(experiment: str, overrides: dict[str, dict[str, float]] | None 
 # the defaults of sim.params, and the analysis must give no finding on a log of the rig it is told about
 # whatever its values (tests/test_discrepancy*.py draw baselines from these). (group, field): (low, high).
 BASELINE_RANGES: dict[tuple[str, str], tuple[float, float]] = {
-    # N·m: the paper's stiction threshold 0.13 N·m (Sec. V) of one unit, ±40 % for other units, greases, wear
+    # N·m: the paper's stiction threshold 0.13 N·m (Sec. IV) of one unit, ±40 % for other units, greases, wear
     ("friction", "breakaway_torque_nm"): (0.08, 0.18),
     # [1] Coulomb/breakaway: 0.6 (a marked Stribeck drop) to 0.96 (almost none), the span of the grid of
     # experiments/identify_defaults.py (0.09/0.13 = 0.7 and 0.125/0.13 = 0.96)

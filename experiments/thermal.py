@@ -1,4 +1,4 @@
-"""Temperature compensation (paper Sec. IV-C, Eq. 20, Table V).
+"""Temperature compensation (paper Sec. III-C, Eq. 20, Table V).
 
     python -m experiments.thermal [--seed N] [--json PATH] [--plot DIR] [--params TOML]
 
@@ -55,7 +55,7 @@ PAPER_FIGURES = (
     ("mini85_drift_rms_10nm", "V", "1-h drift RMS at 10 N·m, MINI85 (the reference)", "N·m", 0.0061),
     ("dyjn104_drift_rms_0nm", "V", "1-h drift RMS at 0 N·m, DYJN-104 (not modelled)", "N·m", 0.0442),
     ("dyjn104_drift_rms_10nm", "V", "1-h drift RMS at 10 N·m, DYJN-104 (not modelled)", "N·m", 0.0314),
-    ("drift_per_kelvin_pct_fs", "IV-C", "zero drift per 1 °C", "% FS", 0.014),
+    ("drift_per_kelvin_pct_fs", "III-C", "zero drift per 1 °C", "% FS", 0.014),
 )
 
 
@@ -72,7 +72,7 @@ class ThermalExperiment:
     reference_c: float  # [°C] the calibration temperature the compensation refers to
 
     def rows(self) -> list[dict[str, Any]]:
-        """Every figure of Table V and Sec. IV-C beside the paper's."""
+        """Every figure of Table V and Sec. III-C beside the paper's."""
         return self.comparison
 
     def to_dict(self) -> dict[str, Any]:
@@ -204,7 +204,7 @@ def main(argv: list[str] | None = None) -> int:
     print("factory calibration, chamber protocol (140 min simulated), two one-hour tests ...", file=sys.stderr)
     with run_errors(parser):
         result = run_thermal(params, args.seed)
-    print(format_rows("Temperature compensation (Table V, Sec. IV-C)", result.rows(), band=TARGET_RATIO))
+    print(format_rows("Temperature compensation (Table V, Sec. III-C)", result.rows(), band=TARGET_RATIO))
     print("\nzero-drift models fitted on the chamber record (paper: the rational function fits best):")
     for name, reason in result.models.failures.items():
         print(f"  {name:<9} failed: {reason}")

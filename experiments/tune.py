@@ -43,7 +43,6 @@ raises Kp. With a single noise realisation per task the optimum is specific to i
 
 from __future__ import annotations
 
-import functools
 import math
 import sys
 from dataclasses import dataclass, field
@@ -55,7 +54,8 @@ from scipy.optimize import minimize
 from controllers.feedback import check_feedback
 from controllers.pi import FEEDBACK_KEYS, PAPER_KI_PER_S, PAPER_KP, PITorqueController
 from controllers.tracking import tracking_error
-from envs.torque_tracking import OBSERVATION_NAMES, TorqueTrackingEnv
+from envs.torque_tracking import OBSERVATION_NAMES
+from envs.torque_tracking_vector import TorqueTrackingVectorEnv
 from experiments.common import (
     add_experiment_args,
     cli_parser,
@@ -125,21 +125,32 @@ class Episode:
     output_nm: np.ndarray = field(repr=False)
 
 
-def run_episode(env: TorqueTrackingEnv, gains: Gains, task: TuneTask, seed: int, feedback: str = "sensor") -> Episode:
-    """The gains' controller on ``env`` for one episode of ``task``; inf RMS if the physics diverged."""
-    obs, _ = env.reset(seed=seed, options=task.options)
-    controller = gains.controller(env.nominal_params, feedback)
-    n = env.n_steps
-    time, ref, out = np.empty(n), np.empty(n), np.empty(n)
-    action = np.zeros(1)
+def run_episodes(vec: TorqueTrackingVectorEnv, runs: list[tuple[Gains, TuneTask, int]],
+                 feedback: str = "sensor") -> list[Episode]:
+    """One episode per (gains, task, seed) of ``runs``, environment i of ``vec`` (``num_envs = len(runs)``)
+    running run i with its gains' controller; inf RMS for a run whose physics diverged."""
+    options = {key: [task.options.get(key) for _, task, _ in runs] for key in ("task", "amplitude_nm", "frequency_hz")}
+    obs, _ = vec.reset(seed=[seed for _, _, seed in runs], options=options)
+    controllers = [gains.controller(vec.template.nominal_params, feedback) for gains, _, _ in runs]
+    n, m = vec.n_steps, len(runs)
+    time, ref, out = np.empty((m, n)), np.empty((m, n)), np.empty((m, n))
+    ended = [n] * m  # ticks run by each environment (fewer if its physics diverged)
+    action = np.zeros((m, 1))
     for k in range(n):
-        action[0] = controller.step(dict(zip(OBSERVATION_NAMES, obs.tolist(), strict=True)))
-        obs, _, terminated, _, info = env.step(action)
-        if terminated:
-            return Episode(math.inf, time[:k], ref[:k], out[:k])
-        time[k], ref[k], out[k] = info["time_s"], info["reference_nm"], info["loadcell_torque_nm"]
-    start = int(np.flatnonzero(ref)[0]) if np.any(ref) else 0  # graded from the reference's first move on
-    return Episode(tracking_error(out[start:], ref[start:]).rms_nm, time, ref, out)
+        for i, controller in enumerate(controllers):
+            action[i, 0] = controller.step(dict(zip(OBSERVATION_NAMES, obs[i].tolist(), strict=True)))
+        obs, _, terminated, _, info = vec.step(action)
+        for i in np.flatnonzero(terminated).tolist():
+            ended[i] = min(ended[i], k)
+        time[:, k], ref[:, k], out[:, k] = info["time_s"], info["reference_nm"], info["loadcell_torque_nm"]
+    episodes = []
+    for i, k in enumerate(ended):
+        if k < n:
+            episodes.append(Episode(math.inf, time[i, :k], ref[i, :k], out[i, :k]))
+            continue
+        start = int(np.flatnonzero(ref[i])[0]) if np.any(ref[i]) else 0  # graded from the reference's first move on
+        episodes.append(Episode(tracking_error(out[i, start:], ref[i, start:]).rms_nm, time[i], ref[i], out[i]))
+    return episodes
 
 
 @dataclass(frozen=True)
@@ -216,11 +227,24 @@ def tune(params: TestbedParams | None = None, feedback: str = "sensor", damping:
         raise ValueError(f"max_evaluations = {max_evaluations!r}: valid range [1, inf)")
     if not (math.isfinite(gain_margin) and gain_margin >= 1.0):
         raise ValueError(f"gain_margin = {gain_margin!r}: valid range [1, inf)")
-    env = TorqueTrackingEnv(episode_duration_s=duration_s, params=params)
+    vector_envs: dict[int, TorqueTrackingVectorEnv] = {}  # by num_envs
+    episodes: dict[Gains, list[Episode]] = {}  # the objective's episodes, reused for the winner's traces
 
-    @functools.cache  # the objective's episodes are reused for the winner's traces (deterministic runs)
+    def evaluate(*candidates: Gains) -> None:
+        """Run every task of the candidates not run yet, all episodes together (one environment each)."""
+        new = list(dict.fromkeys(g for g in candidates if g not in episodes))
+        runs = [(g, task, seed + t) for g in new for t, task in enumerate(TUNE_TASKS)]
+        if not runs:
+            return
+        if len(runs) not in vector_envs:
+            vector_envs[len(runs)] = TorqueTrackingVectorEnv(len(runs), episode_duration_s=duration_s, params=params)
+        done = run_episodes(vector_envs[len(runs)], runs, feedback)
+        for j, g in enumerate(new):
+            episodes[g] = done[j * len(TUNE_TASKS):(j + 1) * len(TUNE_TASKS)]
+
     def errors(g: Gains) -> list[Episode]:
-        return [run_episode(env, g, task, seed + t, feedback) for t, task in enumerate(TUNE_TASKS)]
+        evaluate(g)
+        return episodes[g]
 
     paper_eps = errors(PAPER_GAINS)
     paper_rms = [e.rms_nm for e in paper_eps]
@@ -243,6 +267,7 @@ def tune(params: TestbedParams | None = None, feedback: str = "sensor", damping:
         if count[0] >= max_evaluations:
             return math.inf
         count[0] += 1
+        evaluate(g, *([_scaled(g, gain_margin)] if gain_margin > 1.0 else []))
         ok = admissible(margin_rms(g))
         value = max(e.rms_nm / p for e, p in zip(errors(g), paper_rms, strict=True)) if ok else math.inf
         if progress:

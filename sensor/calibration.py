@@ -1,6 +1,6 @@
 """Calibration of the photo-reflector array: eight channel voltages to joint torque.
 
-Paper: Sec. IV-A "Calibration Method and Experiment", Eqs. 10-17.
+Paper: Sec. III-A "Calibration Method and Experiment", Eqs. 10-17.
 
 The calibration map is a per-channel cubic in the channel voltages (Eq. 10)::
 
@@ -71,16 +71,16 @@ __all__ = [
 
 # --- Constants from the paper -------------------------------------------------------------------
 N_CHANNELS = 8
-"""Photo-reflector channels; Sec. IV-A: ``x = [V_1 ... V_8]``."""
+"""Photo-reflector channels; Sec. III-A: ``x = [V_1 ... V_8]``."""
 
 N_COEFFICIENTS = 3 * N_CHANNELS + 1
-"""Columns of the design matrix; Sec. IV-A, Eq. 10: ``A = [x^3 x^2 x 1]`` is N x 25."""
+"""Columns of the design matrix; Sec. III-A, Eq. 10: ``A = [x^3 x^2 x 1]`` is N x 25."""
 
 E_MAX_FRACTION_FS = 0.002
 """Error bound as a fraction of full scale; Eq. 14: ``e_max = 0.002 * FS``."""
 
 _FS_NM = PhotoReflectorParams().full_scale_nm
-"""Default full scale [N m]: ``photoreflector.full_scale_nm`` of the default parameters (80 N m, Sec. IV-B)."""
+"""Default full scale [N m]: ``photoreflector.full_scale_nm`` of the default parameters (80 N m, Sec. III-B)."""
 
 E_MAX_NM = E_MAX_FRACTION_FS * _FS_NM
 """Default error bound [N m] = 0.16 N m (Eq. 14 with the default FS = 80 N m)."""
@@ -88,7 +88,7 @@ E_MAX_NM = E_MAX_FRACTION_FS * _FS_NM
 # --- Our choices (the paper gives no value) ---------------------------------------------------------
 QUIET_TAU_THRESHOLD_NM = 0.05
 """Default quiet-segment threshold tau_th [N m]. Paper (after Eq. 17) names the rule |tau| <= tau_th
-but no value; ours is about 5 counts of the MINI85 reference resolution 7/748 N m (Sec. IV-A)."""
+but no value; ours is about 5 counts of the MINI85 reference resolution 7/748 N m (Sec. III-A)."""
 
 FEASIBILITY_TOL_FRACTION_FS = 1e-9
 """A row counts as violating the bound when ``|a_k theta - y_k| > e_max + 1e-9 * FS`` (our choice:

@@ -1,4 +1,4 @@
-"""Temperature experiments of the paper (Sec. IV-C): the chamber protocol and the one-hour drift test.
+"""Temperature experiments of the paper (Sec. III-C): the chamber protocol and the one-hour drift test.
 
 Multi-rate: nothing mechanical changes in these runs (the sensor sits unloaded or under a test weight), so
 the mechanics are not stepped at all: the flexure twist is the held torque over K_t, the board temperature
@@ -20,11 +20,11 @@ from sensor.protocol import check_params
 from sim.params import TestbedParams
 from sim.thermal import ThermalState
 
-# Paper Sec. IV-C: chamber set points -10 ... 50 °C in 10 °C steps, each held for 20 min.
+# Paper Sec. III-C: chamber set points -10 ... 50 °C in 10 °C steps, each held for 20 min.
 CHAMBER_SETPOINTS_C = (-10.0, 0.0, 10.0, 20.0, 30.0, 40.0, 50.0)
 CHAMBER_HOLD_S = 20 * 60.0
 CHAMBER_LOG_PERIOD_S = 1.0  # assumed: one logged sample per second is ample for minutes-long transients
-# Paper Table V: one-hour drift at 0 and 10 N·m; a maximum temperature change of 1 °C (Sec. IV-C).
+# Paper Table V: one-hour drift at 0 and 10 N·m; a maximum temperature change of 1 °C (Sec. III-C).
 # The sensor sits alone in the chamber (Fig. 9(a)): no motor attached, and the chamber's fan forces the air.
 CHAMBER_BOARD_TO_AIR_K_PER_W = 1.5  # assumed: forced convection h ≈ 35 W/(m²·K) over ~0.018 m² of surface
 NO_CONDUCTION_K_PER_W = 1e9  # a thermal resistance standing for "no path" (the motor is not attached)

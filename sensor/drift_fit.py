@@ -1,4 +1,4 @@
-"""Temperature zero-drift models of the torque output (paper Sec. IV-C, Eq. 20).
+"""Temperature zero-drift models of the torque output (paper Sec. III-C, Eq. 20).
 
 The paper measured the zero-torque output at chamber set points -10 ... 50 degC (20 min each) against
 the on-board TMP117 temperature, and compensated it with a five-constant rational function (Eq. 20)::
@@ -267,7 +267,7 @@ _FITTERS = {"rational": fit_rational_drift, "poly4": fit_poly4_drift,
 
 @dataclass(frozen=True)
 class DriftModelComparison:
-    """The three candidate models fitted to the same data (Sec. IV-C).
+    """The three candidate models fitted to the same data (Sec. III-C).
 
     Attributes
     ----------

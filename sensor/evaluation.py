@@ -1,4 +1,4 @@
-"""The paper's sensor evaluation (Sec. IV-B, Tables III-IV, the LS/QP resolution comparison), simulated.
+"""The paper's sensor evaluation (Sec. III-B, Tables III-IV, the LS/QP resolution comparison), simulated.
 
 One call calibrates a sensor unit on the simulated rig and evaluates it on fresh records of the same
 protocols (a different noise draw from the calibration record, as a second session on the rig would give):

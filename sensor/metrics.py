@@ -1,7 +1,7 @@
-"""Sensor evaluation metrics, defined once, as the paper uses them (Sec. IV-B, Tables III-IV).
+"""Sensor evaluation metrics, defined once, as the paper uses them (Sec. III-B, Tables III-IV).
 
 Every metric reported in % FS is normalised by the full scale ``FS`` (``photoreflector.full_scale_nm``,
-80 N m: the design maximum T_z^max, Sec. IV-B) unless a different ``fs_nm`` is given -- not by the calibrated
+80 N m: the design maximum T_z^max, Sec. III-B) unless a different ``fs_nm`` is given -- not by the calibrated
 range (+-25 N m).
 
 =====================  ======================================================  ==================
@@ -19,9 +19,9 @@ crosstalk              ``max |tau_hat|`` under an applied T_x (T_y) moment / FS 
 3-sigma resolution     ``3 * std(tau_hat)`` over a no-load record (10 s at      0.0224 N m (QP),
                        1 kHz, unfiltered)                                      0.0480 N m (LS)
 drift RMS              ``sqrt(mean((tau_hat - tau)^2))`` over a one-hour test   0.0326 N m at 10 N m
-                       at constant load (Sec. IV-C)                            (T. V, uncompensated)
+                       at constant load (Sec. III-C)                            (T. V, uncompensated)
 zero drift per 1 K     largest slope of the fitted zero drift over the tests'  0.014 % FS
-                       temperature range x 1 K / FS (Sec. IV-C)
+                       temperature range x 1 K / FS (Sec. III-C)
 =====================  ======================================================  ==================
 
 What the paper leaves open, and the choice made here
@@ -95,14 +95,14 @@ DEFAULT_N_BINS = 50
 
 DIRECTION_DEADBAND_NM = 0.05
 """Reference movement that counts as a reversal of the loading direction [N m] (our choice: about 5
-counts of the MINI85 resolution 7/748 N m, Sec. IV-A, so that reference noise during holds does not
+counts of the MINI85 resolution 7/748 N m, Sec. III-A, so that reference noise during holds does not
 flip the branch)."""
 
 RESOLUTION_RECORD_S = 10.0
-"""Length of the no-load record for the 3-sigma resolution [s] (Sec. IV-B)."""
+"""Length of the no-load record for the 3-sigma resolution [s] (Sec. III-B)."""
 
 RESOLUTION_SAMPLE_RATE_HZ = 1000.0
-"""Sampling rate of that record [Hz] (Sec. IV-B: 1 kHz, unfiltered)."""
+"""Sampling rate of that record [Hz] (Sec. III-B: 1 kHz, unfiltered)."""
 
 _PCT = 100.0
 
@@ -626,7 +626,7 @@ def crosstalk(tau_hat: np.ndarray, *, tau_z_ref: np.ndarray | None = None,
 
 @dataclass(frozen=True)
 class ResolutionResult:
-    """3-sigma resolution (Sec. IV-B, Fig. 8(e)-(f)).
+    """3-sigma resolution (Sec. III-B, Fig. 8(e)-(f)).
 
     Attributes
     ----------
@@ -664,7 +664,7 @@ def resolution_3sigma(tau_hat_no_load: np.ndarray, *,
                             duration_s=t.size / fs_hz)
 
 
-# --- Temperature (Sec. IV-C, Table V) ----------------------------------------------------------------------
+# --- Temperature (Sec. III-C, Table V) ----------------------------------------------------------------------
 ZERO_DRIFT_GRID_POINTS = 200  # temperatures the fitted zero drift's slope is evaluated at
 
 

@@ -1,4 +1,4 @@
-"""The eight-channel photo-reflector array (paper Secs. II-IV): twist, moments and temperature to ADC volts.
+"""The eight-channel photo-reflector array (paper Secs. II-III): twist, moments and temperature to ADC volts.
 
 Written in Python because MuJoCo has no optical sensor. Channel k sits in direction φ_j = j·π/2
 (j = k // 2: +x, +y, -x, -y) at the sensing radius l_s. The two channels of a direction face the reflective
@@ -30,7 +30,7 @@ from models.gim8108_testbed.derived import derive
 from sim.params import TestbedParams
 
 CHANNELS = 8
-CALIBRATION_SPAN_NM = 25.0  # paper Sec. IV-B: calibration range ±25 N·m; the nonlinearity fractions refer to it
+CALIBRATION_SPAN_NM = 25.0  # paper Sec. III-B: calibration range ±25 N·m; the nonlinearity fractions refer to it
 SLIP_ELEMENTS = 8  # discretisation of the Maxwell-slip operator: loops within 1/8 of their width of the limit
 
 
@@ -102,6 +102,42 @@ def maxwell_slip(x: np.ndarray, half_widths: np.ndarray, state: np.ndarray) -> t
     return np.repeat(y_runs, np.diff(np.append(starts, len(x)))), s
 
 
+def clip_nan(x, low, high):
+    """numpy's clip of x to [low, high] (the lower bound first, NaN kept): on floats by comparisons, on arrays
+    by :func:`numpy.clip`."""
+    if isinstance(x, float):
+        x = x if x > low or x != x else low
+        return x if x < high or x != x else high
+    return np.clip(x, low, high)
+
+
+def _same(a, b) -> bool:
+    """Whether two temperatures [°C] are equal: floats, or (N,) arrays element by element (NaN differs)."""
+    return a == b if isinstance(a, float) else bool(np.array_equal(a, b))
+
+
+# The per-tick formulas, elementwise: on one channel's Python floats (PhotoReflectorArray, per channel) or on
+# (channels, units) arrays (PhotoReflectorStack, at once). IEEE arithmetic rounds alike in both.
+
+def slip_mean(s):
+    """Mean of the SLIP_ELEMENTS = 8 element states s[0] ... s[7] [rad]: numpy's reduction of eight (its +0.0
+    identity plus the pairwise sum), over 8, so signed zeros, NaN and ties come out as in :func:`maxwell_slip`
+    (floats, or rows of arrays)."""
+    return (0.0 + (((s[0] + s[1]) + (s[2] + s[3])) + ((s[4] + s[5]) + (s[6] + s[7])))) / SLIP_ELEMENTS
+
+
+def optical_voltage(twist_rad, slipped_rad, keep, f, sign, v0, s1, s2, s3, s4, gain, radius_m):
+    """g·(V0 + S x + Q x² + C x³ + P x⁴) [V], x = r·(θ·(1 - f) + M(θ)·f)·s, of a channel for the twist and the
+    slip operator's output [rad] (``keep`` = 1 - f)."""
+    x = radius_m * (twist_rad * keep + slipped_rad * f) * sign
+    return gain * (v0 + x * (s1 + x * (s2 + x * (s3 + x * s4))))
+
+
+def sensing_chain(state_v, noisy_v, alpha, one_minus_alpha):
+    """One sample of the first-order sensing chain [V]: α·state + (1 - α)·input."""
+    return alpha * state_v + one_minus_alpha * noisy_v
+
+
 def _as_series(name: str, value: np.ndarray | float, n: int) -> np.ndarray:
     arr = np.broadcast_to(np.asarray(value, dtype=float), (n,)) if np.ndim(value) == 0 else np.asarray(value, float)
     if arr.shape != (n,):
@@ -167,6 +203,7 @@ class PhotoReflectorArray:
         self._tilt_rows = tuple(zip(u.crosstalk_v_per_nm.tolist(), np.sin(u.angles_rad).tolist(),
                                     np.cos(u.angles_rad).tolist(), strict=True))
         self._noise_v = u.noise_v.tolist()
+        self._tempco = u.tempco_per_k
 
     @property
     def lsb_v(self) -> float:
@@ -264,51 +301,48 @@ class PhotoReflectorArray:
         """
         slipped = self._slip_sample(twist_rad)
         temp = self._reference_c if temperature_c is None else temperature_c
-        if temp != self._gain_temperature_c:  # the TMP117 moves in 7.8 m°C steps: reuse the gains between
+        if not _same(temp, self._gain_temperature_c):  # the TMP117 moves in 7.8 m°C steps: gains reused between
             self._set_gain_temperature(temp)
         v = self._optical_sample(twist_rad, slipped)
         if tx_nm or ty_nm:
-            v = [vk + x * (tx_nm * s - ty_nm * c) for vk, (x, s, c) in zip(v, self._tilt_rows)]
+            v = [vk + x * (tx_nm * s - ty_nm * c) for vk, (x, s, c) in zip(v, self._tilt_rows, strict=True)]
         v = self._noise_and_chain(v)
         self._filter_state = v
         return self._quantise(v)
 
     def _slip_sample(self, twist_rad: float) -> float:
-        """Advance the Maxwell-slip elements to one input [rad]; their mean M(θ) [rad].
+        """Advance the Maxwell-slip elements to one input [rad]; their mean M(θ) [rad] (:func:`slip_mean`).
 
-        Each element is numpy's clip (NaN-propagating, the lower bound first) written out; the mean is
-        numpy's reduction of eight (its +0.0 identity plus the pairwise sum), over 8, so signed zeros, NaN
-        and ties come out as in :func:`maxwell_slip`. Written for SLIP_ELEMENTS = 8.
+        Each element is numpy's clip (NaN-propagating, the lower bound first; :func:`clip_nan` written out, a
+        call per element costing more than the clip).
         """
         s = []
-        for sk, h in zip(self._slip_state, self._half_widths_list):
+        for sk, h in zip(self._slip_state, self._half_widths_list, strict=True):
             lo, hi = twist_rad - h, twist_rad + h
             sk = sk if sk > lo or sk != sk else lo
             s.append(sk if sk < hi or sk != sk else hi)
         self._slip_state = s
-        return (0.0 + (((s[0] + s[1]) + (s[2] + s[3])) + ((s[4] + s[5]) + (s[6] + s[7])))) / SLIP_ELEMENTS
+        return slip_mean(s)
 
     def _set_gain_temperature(self, temperature_c: float) -> None:
         """Optical gains g_k(T) [-] at a board temperature [°C] (np.exp, as the array form)."""
         self._gain_temperature_c = temperature_c
-        self._gain = np.exp(self.unit.tempco_per_k * (temperature_c - self._reference_c)).tolist()
+        self._gain = np.exp(self._tempco * (temperature_c - self._reference_c)).tolist()
 
     def _optical_sample(self, twist_rad: float, slipped_rad: float) -> list[float]:
-        """g_k(T) · (V0_k + S_k x + Q_k x² + C_k x³ + P_k x⁴) per channel [V] for one twist and slip [rad]."""
+        """:func:`optical_voltage` of each channel [V] for one twist and slip [rad]."""
         r = self._sensing_radius_m
-        v = []
-        for (keep, f, sign, v0, s1, s2, s3, s4), g in zip(self._channel_rows, self._gain):
-            x = r * (twist_rad * keep + slipped_rad * f) * sign
-            v.append(g * (v0 + x * (s1 + x * (s2 + x * (s3 + x * s4)))))
-        return v
+        return [optical_voltage(twist_rad, slipped_rad, *row, g, r)
+                for row, g in zip(self._channel_rows, self._gain, strict=True)]
 
     def _noise_and_chain(self, v: list[float]) -> list[float]:
-        """The channels' white noise added to the voltages [V], then the first-order sensing chain (one pass)."""
-        noisy = zip(v, self._noise.take_list(CHANNELS), self._noise_v)
+        """The channels' white noise added to the voltages [V], then the first-order sensing chain (one pass;
+        none on the first sample, nor when the chain settles within one)."""
+        noisy = [vk + z * n for vk, z, n in zip(v, self._noise.take_list(CHANNELS), self._noise_v, strict=True)]
         if self._filter_state is None or not self._filtering:
-            return [vk + z * n for vk, z, n in noisy]
+            return noisy
         a, b = self._alpha, self._one_minus_alpha
-        return [a * state + b * (vk + z * n) for state, (vk, z, n) in zip(self._filter_state, noisy)]
+        return [sensing_chain(state, vk, a, b) for state, vk in zip(self._filter_state, noisy, strict=True)]
 
     def _quantise(self, v: list[float]) -> list[float]:
         """ADC counts of the voltages times the LSB [V]: rint (half to even), clipped to [0, max count]."""
@@ -367,6 +401,123 @@ class NormalStream:
         self._next += len(held)
         rest = self._rng.standard_normal(n - len(held))
         return np.concatenate((held, rest)) if held else rest
+
+
+class NormalBank:
+    """:class:`NormalStream` of N generators at once: ``take(k)`` hands out the next k draws of each generator
+    as a (k, N) array. Each generator's draws come in its own order, so unit i gets exactly the numbers its own
+    NormalStream would.
+
+    Parameters
+    ----------
+    n : int
+        Number of generators.
+    block : int
+        Values drawn per generator per refill (a multiple of every k taken).
+    """
+
+    def __init__(self, n: int, block: int = 64 * CHANNELS) -> None:
+        self._block = block
+        self._rngs: list[np.random.Generator | None] = [None] * n
+        self._buffer = np.empty((n, block))
+        self._next = np.full(n, block)
+        self._rows = np.arange(n)[:, None]
+
+    def set_rng(self, i: int, rng: np.random.Generator) -> None:
+        """Draw generator i's values from ``rng`` from now on (its only consumer)."""
+        self._rngs[i] = rng
+        self._next[i] = self._block
+
+    def take(self, k: int) -> np.ndarray:
+        """The next k draws of every generator, (k, N): row j holds every generator's j-th."""
+        if self._block % k:
+            raise ValueError(f"k = {k}: must divide the block of {self._block} draws")
+        if self._next.max() >= self._block:
+            for i in np.flatnonzero(self._next >= self._block).tolist():
+                self._buffer[i] = self._rngs[i].standard_normal(self._block)
+                self._next[i] = 0
+        start = self._next
+        self._next = start + k
+        if k == 1:
+            return self._buffer[self._rows[:, 0], start][None, :]
+        return self._buffer[self._rows, start[:, None] + np.arange(k)].T
+
+    def normal(self, loc: float, scale: float) -> np.ndarray:
+        """One ``Generator.normal(loc, scale)`` draw per generator, (N,): loc + scale·z, as numpy computes it."""
+        return loc + scale * self.take(1)[0]
+
+
+class PhotoReflectorStack(PhotoReflectorArray):
+    """N sensor units read together, one sample per unit per call: the per-tick path of
+    :class:`PhotoReflectorArray` (:meth:`read_sample_list`, its formulas :func:`optical_voltage`,
+    :func:`sensing_chain`, :func:`slip_mean`) on (channels, units) arrays, unit i as its own PhotoReflectorArray
+    (:meth:`set_unit`) reads it.
+
+    Parameters
+    ----------
+    n : int
+        Number of units; each is set by :meth:`set_unit` before the first read.
+    """
+
+    def __init__(self, n: int) -> None:  # the constants come per unit (set_unit), not from parameters
+        self.n = n
+        self._noise = NormalBank(n)
+        self._sensing_radius_m, self._reference_c = np.full(n, np.nan), np.full(n, np.nan)
+        self._max_count, self._lsb_v = np.full(n, np.nan), np.full(n, np.nan)
+        self._alpha, self._one_minus_alpha = np.full(n, np.nan), np.full(n, np.nan)
+        self._filtering = np.zeros(n, dtype=bool)
+        self._started = np.zeros(n, dtype=bool)
+        self._channel_rows = np.full((8, CHANNELS, n), np.nan)  # (1 - f, f, s, V0, S, Q, C, P) x channel x unit
+        self._half_widths = np.full((SLIP_ELEMENTS, n), np.nan)
+        self._tempco = np.full((CHANNELS, n), np.nan)
+        self._noise_v = np.full((CHANNELS, n), np.nan)
+        self._slip_state = np.zeros((SLIP_ELEMENTS, n))
+        self._filter_state = np.zeros((CHANNELS, n))
+        self._gain_temperature_c = np.full(n, np.nan)
+
+    def set_unit(self, i: int, unit: PhotoReflectorArray) -> None:
+        """Unit i becomes ``unit`` as it stands after construction (its constants, its noise generator), from
+        rest: no slip, an empty sensing chain."""
+        for name in ("_sensing_radius_m", "_reference_c", "_max_count", "_lsb_v", "_alpha", "_one_minus_alpha",
+                     "_filtering"):
+            getattr(self, name)[i] = getattr(unit, name)
+        self._started[i] = False
+        self._channel_rows[:, :, i] = np.array(unit._channel_rows).T
+        self._half_widths[:, i] = unit._half_widths_list
+        self._tempco[:, i] = unit._tempco
+        self._noise_v[:, i] = unit._noise_v
+        self._slip_state[:, i] = unit._slip_state
+        self._filter_state[:, i] = 0.0
+        self._gain_temperature_c = np.full(self.n, np.nan)  # the gains are recomputed at the next read
+        self._noise.set_rng(i, unit._rng)
+
+    def read_sample_list(self, twist_rad, tx_nm=0.0, ty_nm=0.0, temperature_c=None) -> np.ndarray:
+        """:meth:`PhotoReflectorArray.read_sample_list` of every unit: (N,) twists [rad] and temperatures [°C]
+        (required) in, the channel voltages [V] out, (8, N)."""
+        if temperature_c is None or tx_nm or ty_nm:
+            raise ValueError("a stack of units reads (N,) twists [rad] and temperatures [°C], without moments")
+        v = super().read_sample_list(twist_rad, tx_nm, ty_nm, temperature_c)
+        self._started[:] = True
+        return v
+
+    def _slip_sample(self, twist_rad: np.ndarray) -> np.ndarray:
+        self._slip_state = clip_nan(self._slip_state, twist_rad - self._half_widths, twist_rad + self._half_widths)
+        return slip_mean(self._slip_state)
+
+    def _set_gain_temperature(self, temperature_c: np.ndarray) -> None:
+        self._gain_temperature_c = np.array(temperature_c)
+        self._gain = np.exp(self._tempco * (temperature_c - self._reference_c))
+
+    def _optical_sample(self, twist_rad: np.ndarray, slipped_rad: np.ndarray) -> np.ndarray:
+        return optical_voltage(twist_rad, slipped_rad, *self._channel_rows, self._gain, self._sensing_radius_m)
+
+    def _noise_and_chain(self, v: np.ndarray) -> np.ndarray:
+        noisy = v + self._noise.take(CHANNELS) * self._noise_v
+        filtered = sensing_chain(self._filter_state, noisy, self._alpha, self._one_minus_alpha)
+        return np.where(self._started & self._filtering, filtered, noisy)
+
+    def _quantise(self, v: np.ndarray) -> np.ndarray:
+        return np.clip(np.rint(v / self._lsb_v), 0, self._max_count) * self._lsb_v
 
 
 def reference_torque(tau_nm: np.ndarray, params: TestbedParams, rng: np.random.Generator) -> np.ndarray:

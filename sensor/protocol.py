@@ -1,5 +1,5 @@
-"""The calibration rig of the paper (Sec. IV-A, Figs. 5, 6 and 8(a)-(b)), simulated: schedules of applied moments and the
-records they produce (sensor channel voltages beside the ATI MINI85 reference).
+"""The calibration rig of the paper (Sec. III-A, Figs. 5, 6 and 8(a)-(b)), simulated: schedules of applied moments and
+the records they produce (sensor channel voltages beside the ATI MINI85 reference).
 
 The sensor is bolted to the reference sensor and loaded with test weights on a lever: the loading is
 quasi-static (seconds per step against a flexure mode of kHz), so the flexure twist is the applied torque over
@@ -19,7 +19,7 @@ from sensor.calibration import E_MAX_FRACTION_FS, QUIET_TAU_THRESHOLD_NM
 from sensor.photoreflector import PhotoReflectorArray, reference_torque
 from sim.params import ParameterError, TestbedParams
 
-# Paper Sec. IV-B: test weights to about ±25 N·m, loading and unloading five times in each direction.
+# Paper Sec. III-B: test weights to about ±25 N·m, loading and unloading five times in each direction.
 CALIBRATION_LEVELS_NM = (5.0, 10.0, 15.0, 20.0, 25.0)
 CALIBRATION_CYCLES = 5
 PRELOAD_CYCLES = 1  # per direction; a rate-independent slip state is set by one full excursion
@@ -29,7 +29,7 @@ PRELOAD_LABEL = -1  # ``cycle`` label of preload samples
 TRANSITION_S = 0.5
 HOLD_S = 2.0
 QUIET_S = 5.0
-# Paper Sec. IV-B: crosstalk moments T_x, T_y over about 25 N·m; resolution from 10 s at 1 kHz, no filtering.
+# Paper Sec. III-B: crosstalk moments T_x, T_y over about 25 N·m; resolution from 10 s at 1 kHz, no filtering.
 CROSSTALK_LEVELS_NM = (5.0, 10.0, 15.0, 20.0, 25.0)
 RESOLUTION_RECORD_S = 10.0
 ADC_NOISE_MARGIN_SIGMA = 5.0  # check_params: a channel's swing plus this many noise stds must fit the ADC range

@@ -1,10 +1,10 @@
 """The calibrated joint torque sensor in the control loop: flexure twist and board temperature to N·m.
 
-The factory calibration is what the paper does once per sensor (Sec. IV-A): the loading and moment
+The factory calibration is what the paper does once per sensor (Sec. III-A): the loading and moment
 protocols of :mod:`sensor.protocol` at the reference temperature, fitted by the QP (gamma chosen by the
-paper's criterion, :func:`sensor.evaluation.calibrate`) or by least squares. The readout then reads the photo-reflector array once per control tick
-with the plant's twist and the TMP117 temperature, so noise, quantisation, hysteresis, bandwidth and
-thermal drift reach the controller.
+paper's criterion, :func:`sensor.evaluation.calibrate`) or by least squares. The readout then reads the
+photo-reflector array once per control tick with the plant's twist and the TMP117 temperature, so noise,
+quantisation, hysteresis, bandwidth and thermal drift reach the controller.
 """
 
 from __future__ import annotations
@@ -17,7 +17,7 @@ import numpy as np
 
 from sensor.calibration import Calibration
 from sensor.evaluation import calibrate
-from sensor.photoreflector import CHANNELS, PhotoReflectorArray
+from sensor.photoreflector import CHANNELS, PhotoReflectorArray, PhotoReflectorStack
 from sensor.protocol import calibration_schedule, check_params, crosstalk_schedule, record
 from sim.params import TestbedParams
 from sim.runlog import STANDARD_UNITS, VOLTAGE_COLUMNS
@@ -69,6 +69,12 @@ def factory_calibration(params: TestbedParams | None = None, method: Literal["ls
     return rig.ls if method == "ls" else rig.qp
 
 
+def calibration_term(c3, c2, c1, v):
+    """One channel's share of Eq. 10, ((c3·v + c2)·v + c1)·v [N·m] for its voltage [V] (Horner): floats, or
+    (channels, sensors) arrays."""
+    return ((c3 * v + c2) * v + c1) * v
+
+
 class TorqueSensorReadout:
     """The photo-reflector sensor and its calibration, read once per control tick: the measurement
     ``tau_sensor`` [N·m] of a control loop (:class:`sim.run.Measurement`), with the eight channel voltages
@@ -112,19 +118,63 @@ class TorqueSensorReadout:
         """The eight channel voltages [V] of the last read."""
         return self._voltages
 
-    def read_sample(self, twist_rad: float, temperature_c: float, tx_nm: float = 0.0, ty_nm: float = 0.0) -> float:
+    def read_sample(self, twist_rad, temperature_c, tx_nm: float = 0.0, ty_nm: float = 0.0):
         """Sensor torque [N·m] for one sample of flexure twist [rad], board temperature [°C], moments [N·m].
 
         Eq. 10 by Horner per channel, summed in channel order from 0.0 then plus the offset: the order of
-        ``np.dot`` (OpenBLAS's ddot adds an 8-vector sequentially), in Python floats for speed.
+        ``np.dot`` (OpenBLAS's ddot adds an 8-vector sequentially), in Python floats for speed (floats; (N,)
+        arrays for :class:`TorqueSensorStack`).
         """
         v = self._array.read_sample_list(twist_rad, tx_nm, ty_nm, temperature_c)
         self._voltages = v
         torque = 0.0
-        for (c3, c2, c1), vk in zip(self._rows, v):
-            torque += ((c3 * vk + c2) * vk + c1) * vk
+        for term in self._terms(v):
+            torque += term
         return torque + self._offset
+
+    def _terms(self, v):
+        """Eq. 10's cubic of each channel's voltage [N·m] (:func:`calibration_term`), in channel order."""
+        return [calibration_term(c3, c2, c1, vk) for (c3, c2, c1), vk in zip(self._rows, v, strict=True)]
 
     def read(self, plant) -> float:
         """Sensor torque [N·m] for the plant's current tick (its flexure twist and TMP117 reading)."""
         return self.read_sample(plant.flexure_angle_rad, plant.tmp117_temperature_c)
+
+
+class TorqueSensorStack(TorqueSensorReadout):
+    """N optical sensors of one calibration read together: :meth:`read` of a batched plant
+    (:class:`sim.batched.BatchedPlant`) gives the (N,) torques [N·m] each sensor's own
+    :class:`TorqueSensorReadout` would give, by the same per-tick path on (N,) arrays.
+
+    Parameters
+    ----------
+    n : int
+        Number of sensors; each is set by :meth:`set_unit` before the first read.
+    calibration : Calibration
+        The map every unit is read through (e.g. the nominal unit's factory calibration).
+    """
+
+    def __init__(self, n: int, calibration: Calibration) -> None:
+        self.n = n
+        self.calibration = calibration
+        th = calibration.theta
+        self._coefficients = th[0:8, None], th[8:16, None], th[16:24, None]  # (c3, c2, c1), channels x 1
+        self._offset = float(th[24])
+        self._array = PhotoReflectorStack(n)
+        self._voltages = np.full((CHANNELS, n), math.nan)
+
+    def reset(self) -> None:
+        """Units are reset one by one (:meth:`set_unit`)."""
+
+    def set_unit(self, i: int, params: TestbedParams, seed: int) -> None:
+        """Sensor i becomes the unit of ``params`` with the channel noise of ``seed``, from rest."""
+        self._array.set_unit(i, PhotoReflectorArray(params, seed=seed))
+
+    @property
+    def voltages_v(self) -> np.ndarray:
+        """The channel voltages [V] of the last read, (N, 8)."""
+        return self._voltages.T.copy()
+
+    def _terms(self, v: np.ndarray) -> np.ndarray:
+        """(8, N): summed row by row, in channel order, as the single readout sums its channels."""
+        return calibration_term(*self._coefficients, v)

@@ -13,7 +13,7 @@ from sim.plant import Plant, warn_mujoco_warnings
 from sim.run import run_open_loop
 from sim.runlog import RunLog
 
-# Paper Sec. V: breakaway = smallest command at which the motor velocity first exceeds a small threshold
+# Paper Sec. IV: breakaway = smallest command at which the motor velocity first exceeds a small threshold
 # for a sustained duration (> 100 ms) under a ramp.
 BREAKAWAY_SUSTAIN_S = 0.1
 BREAKAWAY_VELOCITY_THRESHOLD_RAD_S = 0.01  # output side; assumed: "a small threshold"

@@ -365,8 +365,8 @@ def _read_csv(path: Path) -> _Raw:
         if len(row) != len(header):
             raise LogError(f"row {row_of(i)} has {len(row)} cells; the header row has {len(header)}",
                            row=row_of(i))
-    cells = list(zip(*body)) if body else [() for _ in header]
-    return _Raw(dict(zip(header, cells)), declared, {}, where)
+    cells = list(zip(*body, strict=True)) if body else [() for _ in header]
+    return _Raw(dict(zip(header, cells, strict=True)), declared, {}, where)
 
 
 def _read_sidecar(side: Path) -> dict[str, str]:

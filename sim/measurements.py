@@ -14,6 +14,7 @@ Each reads the plant at the end of a tick. The optical joint torque sensor is
 
 from __future__ import annotations
 
+import math
 from collections.abc import Mapping, Sequence
 
 import numpy as np
@@ -98,10 +99,11 @@ class LoadCell:
     of ``loadcell.amplifier_bandwidth_hz`` sampled every control period (:mod:`sim.lowpass`), plus white noise
     of standard deviation ``loadcell.reading_noise_n`` x ``lever.length_m`` added after the filter.
 
-    The filter starts at the first reading after :meth:`reset` (no start-up transient). ``noise``: an int seeds
-    the load cell's own stream of that seed (:func:`noise_rng`, apart from the sensor's), restarted by
-    :meth:`reset`; a Generator is drawn from as it goes; None reads without noise. The free fixture has no load
-    cell: there the reading is the flexure's true torque, unfiltered and without noise.
+    The filter starts at the first reading after :meth:`reset` (no start-up transient); reading a batched plant
+    (N testbeds), it keeps N states and :meth:`restart` starts chosen ones again. ``noise``: an int seeds the
+    load cell's own stream of that seed (:func:`noise_rng`, apart from the sensor's), restarted by :meth:`reset`;
+    a Generator (or anything with its ``normal``) is drawn from as it goes; None reads without noise. The free
+    fixture has no load cell: there the reading is the flexure's true torque, unfiltered and without noise.
     """
 
     name, unit = "tau_loadcell", "N·m"
@@ -119,13 +121,23 @@ class LoadCell:
         rng = noise_rng(self._noise) if isinstance(self._noise, (int, np.integer)) else self._noise
         self._rng = rng
         self._normal = rng.normal if rng is not None and self.sigma_nm > 0.0 else None
-        self._filtered: float | None = None
+        self._filtered: float | np.ndarray = math.nan  # NaN: the next reading starts the filter
+
+    def restart(self, ids) -> None:
+        """Start the filter of testbeds ``ids`` of a batched plant again at their next reading."""
+        if isinstance(self._filtered, np.ndarray):
+            self._filtered = self._filtered.copy()  # the last reading may be the caller's: leave it alone
+            self._filtered[ids] = math.nan
 
     def read(self, plant: Plant) -> float:
         if plant.fixture != "locked":
             return plant.flexure_torque_nm
         value = plant.loadcell_force_n * self.lever_m  # what it measures is the force at the lever tip
-        filtered = value if self._filtered is None else lowpass_step(self._filtered, value, self.gain)
+        state = self._filtered
+        if isinstance(value, np.ndarray):  # N testbeds
+            filtered = np.where(np.isnan(state), value, lowpass_step(state, value, self.gain))
+        else:
+            filtered = value if math.isnan(state) else lowpass_step(state, value, self.gain)
         self._filtered = filtered
         return filtered + self._normal(0.0, self.sigma_nm) if self._normal is not None else filtered
 

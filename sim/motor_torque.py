@@ -44,7 +44,7 @@ class CurrentToTorqueMap:
     peak_torque_nm: float
 
     @classmethod
-    def from_params(cls, params: TestbedParams) -> "CurrentToTorqueMap":
+    def from_params(cls, params: TestbedParams) -> CurrentToTorqueMap:
         return cls(params.motor.torque_saturation_per_nm, params.motor.peak_torque_nm)
 
     @property
@@ -56,8 +56,15 @@ class CurrentToTorqueMap:
         """Torque the motor produces for a command [N·m] (a float or an array of them)."""
         return command_nm / (1.0 + self.saturation_per_nm * abs(command_nm))
 
-    def command_nm(self, delivered_nm: float) -> float:
-        """The command that delivers ``delivered_nm`` [N·m] (a float), |delivered_nm| below the asymptote 1/α."""
+    def command_nm(self, delivered_nm: float | np.ndarray) -> float | np.ndarray:
+        """The command that delivers ``delivered_nm`` [N·m], |delivered_nm| below the asymptote 1/α: a float, or
+        an array (with ``saturation_per_nm`` a float or an array of one motor's α per element)."""
+        if isinstance(delivered_nm, np.ndarray):
+            shortfall = 1.0 - self.saturation_per_nm * abs(delivered_nm)  # an α of 0 divides by exactly 1
+            if np.any(shortfall <= 0.0):
+                raise ValueError(f"delivered torques {delivered_nm[shortfall <= 0.0]} N·m: beyond the asymptote "
+                                 f"1/motor.torque_saturation_per_nm of their motors")
+            return delivered_nm / shortfall
         if self.saturation_per_nm == 0.0:  # a linear motor (also with an unbounded peak: no 0·inf)
             return delivered_nm
         shortfall = 1.0 - self.saturation_per_nm * abs(delivered_nm)

@@ -91,9 +91,9 @@ class MotorParams:
         "processing, at most 2 ms")
     torque_saturation_per_nm: float = quantity(
         0.0176, "1/(N·m)", "tuned: magnetic saturation τ = τ_cmd/(1 + α·|τ_cmd|) that the driver's "
-        "current-based estimate does not see (Sec. V-A), 15 % droop at 10 N·m; chosen on the grid of "
+        "current-based estimate does not see (Sec. IV-A), 15 % droop at 10 N·m; chosen on the grid of "
         "experiments/identify_defaults.py against Tables VI-VII (model README, Derivations)", 0.0, 0.025,
-        bound=(0.0, 0.025), bound_source="assumed: the paper notes a nonlinearity (motor experiments), no number; "
+        bound=(0.0, 0.025), bound_source="assumed: the paper notes a nonlinearity (Sec. IV-A), no number; "
         "0-20 % droop at 10 N·m, below the 1/18 at which no current gives 18 N·m")
 
 
@@ -102,9 +102,9 @@ class GearFrictionParams:
     """Gearbox friction at the output (LuGre, MuJoCo's dcmotor) plus a load-dependent part (written in Python)."""
 
     breakaway_torque_nm: float = quantity(
-        0.13, "N·m", "paper Sec. V: stiction threshold ≈ 0.13 N·m (smallest command that starts sustained "
+        0.13, "N·m", "paper Sec. IV: stiction threshold ≈ 0.13 N·m (smallest command that starts sustained "
         "motion)", 0.0, INF, low_open=True,
-        bound=(0.117, 0.143), bound_source="paper, motor experiments: stiction threshold '≈ 0.13 N·m'; ±10 % assumed "
+        bound=(0.117, 0.143), bound_source="paper Sec. IV: stiction threshold '≈ 0.13 N·m'; ±10 % assumed "
         "for the '≈'")
     coulomb_torque_nm: float = quantity(
         0.09, "N·m", "assumed: sliding level ~0.7 of breakaway, typical Stribeck drop of greased "
@@ -157,7 +157,7 @@ class BacklashParams:
     width_rad: float = quantity(
         5.0e-4, "rad", "tuned: 0.03° dead band of a tight planetary stage, chosen on the grid of "
         "experiments/identify_defaults.py against Tables VI-VII; the paper reports backlash but no value "
-        "(Sec. V), the vendor's sheet a 15 arcmin bound (model README, Derivations)", 0.0, 0.2,
+        "(Sec. IV), the vendor's sheet a 15 arcmin bound (model README, Derivations)", 0.0, 0.2,
         low_open=True,
         bound=(2.9e-4, 4.4e-3), bound_source="SteadyWin GIM8108-8: about 15 arcmin (4.4 mrad, via ODrive notes) at "
         "most; 1 arcmin (0.29 mrad), the tightest planetary class, assumed as least")
@@ -220,18 +220,23 @@ class FlangeParams:
 class LeverParams:
     """Lever arm bolted to the sensor's outer ring; its tip meets the load cell."""
 
-    length_m: float = quantity(0.1, "m", "paper Sec. V: 0.1 m lever arm", 0.0, 10.0, low_open=True)
+    length_m: float = quantity(0.1, "m", "paper Sec. IV: 0.1 m lever arm", 0.0, 10.0, low_open=True)
     width_m: float = quantity(0.02, "m", "assumed: aluminium bar section", 0.0, 1.0, low_open=True)
     thickness_m: float = quantity(0.006, "m", "assumed: aluminium bar section", 0.0, 1.0, low_open=True)
-    density_kg_m3: float = quantity(2700.0, "kg/m³", "assumed: aluminium 6061-T6 (ASM data)", 100.0, 25000.0)
-    youngs_modulus_pa: float = quantity(68.9e9, "Pa", "assumed: aluminium 6061-T6 (ASM data)", 1e9, 500e9)
+    density_kg_m3: float = quantity(
+        2700.0, "kg/m³", "assumed: aluminium 6061-T6 (ASM data)", 100.0, 25000.0,
+        bound=(2700.0, 2810.0), bound_source="assumed: an aluminium bar, 6061-T6 2700 to 7075-T6 2810 kg/m³ (ASM data)")
+    youngs_modulus_pa: float = quantity(
+        68.9e9, "Pa", "assumed: aluminium 6061-T6 (ASM data)", 1e9, 500e9,
+        bound=(68.9e9, 71.7e9), bound_source="assumed: an aluminium bar, 6061-T6 68.9 GPa to 7075-T6 71.7 GPa "
+        "(ASM data)")
 
 
 @dataclass(frozen=True)
 class LoadCellParams:
     """CAS SBA-50L S-beam load cell at the lever tip (locked fixture)."""
 
-    capacity_n: float = quantity(500.0, "N", "paper Sec. V: SBA-50L, 500 N", 0.0, INF, low_open=True)
+    capacity_n: float = quantity(500.0, "N", "paper Sec. IV: SBA-50L, 500 N", 0.0, INF, low_open=True)
     full_scale_deflection_m: float = quantity(
         3.0e-4, "m", "assumed: typical S-beam deflection at rated capacity (0.2-0.5 mm); the tip support is "
         "this spring in series with the lever's bending", 0.0, 0.01, low_open=True,
@@ -286,7 +291,7 @@ class ThermalParams:
         "housing")
     motor_to_board_k_per_w: float = quantity(
         5.0, "K/W", "assumed: conduction through the bolted hub; the paper notes motor heat reaches the "
-        "sensor (Sec. IV-C)", 0.0, INF, low_open=True,
+        "sensor (Sec. III-C)", 0.0, INF, low_open=True,
         bound=(2.0, 20.0), bound_source="assumed: conduction through the bolted aluminium hub, contact resistance "
         "included")
     tmp117_resolution_c: float = quantity(0.0078125, "°C", "TI TMP117 datasheet: 16-bit, 7.8125 m°C LSB",
@@ -299,20 +304,20 @@ class ThermalParams:
 @dataclass(frozen=True)
 class PhotoReflectorParams:
     """Eight Vishay TCRT1000 photo-reflectors on the flexure's reflective surface, their ADC and the
-    references of the calibration rig (paper Secs. II-IV). Per-channel values of one sensor unit are drawn
+    references of the calibration rig (paper Secs. II-III). Per-channel values of one sensor unit are drawn
     from the ranges below with ``unit_seed`` (a manufactured unit), so a seed is a sensor."""
 
     unit_seed: int = quantity(0, "1", "assumed: which manufactured unit; per-channel spreads are drawn with it",
                               0, 2**31 - 1)
     sensitivity_min_v_per_m: float = quantity(
-        973.0, "V/m", "paper Sec. IV-B: 0.024 V/(N·m) (0.6 V at 25 N·m) at the default K_t = 1217 N·m/rad and "
+        973.0, "V/m", "paper Sec. III-B: 0.024 V/(N·m) (0.6 V at 25 N·m) at the default K_t = 1217 N·m/rad and "
         "l_s = 30 mm: 0.024·K_t/l_s", 0.0, INF, low_open=True,
-        bound=(973.0, 1622.0), bound_source="paper, calibration: channel sensitivities 0.024-0.04 V/(N·m), times "
+        bound=(973.0, 1622.0), bound_source="paper Sec. III-B: channel sensitivities 0.024-0.04 V/(N·m), times "
         "K_t/l_s at the defaults")
     sensitivity_max_v_per_m: float = quantity(
-        1622.0, "V/m", "paper Sec. IV-B: 0.04 V/(N·m) (1 V at 25 N·m), converted as above", 0.0, INF,
+        1622.0, "V/m", "paper Sec. III-B: 0.04 V/(N·m) (1 V at 25 N·m), converted as above", 0.0, INF,
         low_open=True,
-        bound=(973.0, 1622.0), bound_source="paper, calibration: channel sensitivities 0.024-0.04 V/(N·m), times "
+        bound=(973.0, 1622.0), bound_source="paper Sec. III-B: channel sensitivities 0.024-0.04 V/(N·m), times "
         "K_t/l_s at the defaults")
     quadratic_fraction_max: float = quantity(
         0.04, "1", "assumed: |quadratic term| up to 4 % of the linear one at the 25 N·m calibration span (the paper "
@@ -330,7 +335,7 @@ class PhotoReflectorParams:
         0.15, "V", "assumed: unit-to-unit spread of the operating point (mounting gap tolerance)", 0.0, 1.0)
     noise_min_v: float = quantity(
         2.4e-4, "V", "tuned: quietest channel's white-noise std; with noise_max_v it sets the LS and QP stds of the "
-        "resolution comparison (Sec. IV-B). Plausible range assumed for tests: 0.15-0.4 mV (model "
+        "resolution comparison (Sec. III-B). Plausible range assumed for tests: 0.15-0.4 mV (model "
         "README, Derivations)", 0.0, 1.0,
         bound=(1.5e-4, 4.0e-4), bound_source="assumed: 0.15-0.4 mV std for the quietest channel; the paper gives the "
         "calibrated stds, not the channels'")
@@ -351,7 +356,7 @@ class PhotoReflectorParams:
         "III), not the channels' slip")
     slip_fraction_max: float = quantity(
         0.0165, "1", "tuned: largest fraction of the twist a channel sees through the slipping joint; its spread "
-        "gives the QP its resolution gain over LS (Sec. IV-B). Plausible range assumed for tests: 2-4x "
+        "gives the QP its resolution gain over LS (Sec. III-B). Plausible range assumed for tests: 2-4x "
         "slip_fraction_min (model README, Derivations)", 0.0, 1.0,
         bound=(0.006, 0.024), bound_source="assumed: 2-4x the smallest fraction's bound of 0.3-0.6 %")
     quartic_fraction_max: float = quantity(
@@ -361,7 +366,7 @@ class PhotoReflectorParams:
         bound=(0.0093, 0.074), bound_source="assumed: a 1/d² reflector response at a 2-4 mm gap over the 0.62 mm gap "
         "change at 25 N·m gives 2.5·(Δ/d)³; the TCRT1000 curve is not read")
     crosstalk_v_per_nm: float = quantity(
-        2.4e-3, "V/(N·m)", "paper Sec. IV-B: about 0.06 V per channel at 25 N·m of T_x or T_y", 0.0, 1.0)
+        2.4e-3, "V/(N·m)", "paper Sec. III-B: about 0.06 V per channel at 25 N·m of T_x or T_y", 0.0, 1.0)
     crosstalk_spread: float = quantity(
         0.3, "1", "assumed: relative channel-to-channel spread of the tilt response", 0.0, 1.0,
         bound=(0.1, 0.5), bound_source="assumed: 10-50 % channel-to-channel spread of the tilt response")
@@ -372,26 +377,30 @@ class PhotoReflectorParams:
         "phototransistor's gain; the TCRT1000 temperature curve is not read")
     optical_tempco_spread_per_k: float = quantity(
         2.0e-4, "1/K", "assumed: channel-to-channel spread of that coefficient", 0.0, 0.1)
-    reference_temperature_c: float = quantity(25.0, "°C", "assumed: calibration temperature", -40.0, 85.0)
+    reference_temperature_c: float = quantity(
+        25.0, "°C", "assumed: calibration temperature", -40.0, 85.0,
+        bound=(20.0, 30.0), bound_source="assumed: calibrated in an air-conditioned laboratory")
     bandwidth_hz: float = quantity(5000.0, "Hz", "paper Table II: rise-time-limited bandwidth ~5 kHz",
                                    0.0, INF, low_open=True)
     adc_bits: int = quantity(16, "1", "paper Sec. II: 16-bit ADC", 8, 32)
-    adc_reference_v: float = quantity(3.3, "V", "paper Sec. IV-B: 3.3 V referenced ADC", 0.0, 10.0,
+    adc_reference_v: float = quantity(3.3, "V", "paper Sec. III-B: 3.3 V referenced ADC", 0.0, 10.0,
                                       low_open=True)
     full_scale_nm: float = quantity(
-        80.0, "N·m", "paper Sec. IV-B: 'the full-scale (FS) is defined as the design maximum T_z^max = 80 N·m'; "
+        80.0, "N·m", "paper Sec. III-B: 'the full-scale (FS) is defined as the design maximum T_z^max = 80 N·m'; "
         "every % FS figure (Tables III-IV, the error bound e_max = 0.2 % FS of Eq. 14) is relative to it",
         0.0, 1000.0, low_open=True)
     reference_resolution_nm: float = quantity(
-        7.0 / 748.0, "N·m", "paper Sec. IV-A: ATI MINI85 T_z resolution 7/748 N·m", 0.0, 1.0, low_open=True)
+        7.0 / 748.0, "N·m", "paper Sec. III-A: ATI MINI85 T_z resolution 7/748 N·m", 0.0, 1.0, low_open=True)
     reference_noise_nm: float = quantity(
-        4.7e-3, "N·m", "assumed: MINI85 noise std of half its resolution", 0.0, 1.0)
+        4.7e-3, "N·m", "assumed: MINI85 noise std of half its resolution", 0.0, 1.0,
+        bound=(0.0, 7.0 / 748.0), bound_source="assumed: the MINI85's noise std is at most its T_z resolution of "
+        "7/748 N·m (paper Sec. III-A)")
     reference_gain_error: float = quantity(
         0.0, "1", "assumed: ATI MINI85 T_z gain error g, the reading is (1 + g)·τ + noise, quantised; 0 = an "
-        "exact reference, because the unit's actual error is unknown. Range from paper Sec. IV-A: 1 % FS "
+        "exact reference, because the unit's actual error is unknown. Range from paper Sec. III-A: 1 % FS "
         "accuracy; a gain error g is off by |g|·80 N·m at full scale, so |g| <= 1 % keeps the error within "
         "1 % FS", -0.01, 0.01,
-        bound=(-0.01, 0.01), bound_source="paper, calibration: ATI MINI85 'accuracy of 1 % full scale'; |g| ≤ 1 % "
+        bound=(-0.01, 0.01), bound_source="paper Sec. III-A: ATI MINI85 'accuracy of 1 % full scale'; |g| ≤ 1 % "
         "keeps the error within 1 % FS")
 
 
@@ -399,7 +408,7 @@ class PhotoReflectorParams:
 class SimulationParams:
     """Control rate and the rule that derives the physics step."""
 
-    control_period_s: float = quantity(1e-3, "s", "paper Sec. V: 1 kHz control cycle", 0.0, 1.0,
+    control_period_s: float = quantity(1e-3, "s", "paper Sec. IV: 1 kHz control cycle", 0.0, 1.0,
                                        low_open=True)
     max_omega_dt: float = quantity(
         1.0, "rad", "rule: every mode of the lumped chain satisfies ω·h <= this. Semi-implicit Euler is "

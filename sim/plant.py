@@ -21,7 +21,6 @@ from sim.motor_torque import CurrentToTorqueMap
 from sim.params import TestbedParams
 from sim.thermal import ThermalState
 
-
 CURRENT_PRIMING_TIME_CONSTANTS = 10  # hold_commands replays the current loop over this many time constants
 # Signals a run records every tick (see read_signals): name -> unit. Standard run-log names where they exist.
 SIGNAL_UNITS: dict[str, str] = {
@@ -82,6 +81,27 @@ def warn_mujoco_warnings(stacklevel: int = 2) -> None:
 install_mujoco_warning_handler()
 
 
+def clip(x, low, high):
+    """x limited to [low, high]: ``min(max(x, low), high)`` for a number, elementwise for arrays [any unit]."""
+    if isinstance(x, np.ndarray):
+        return np.minimum(np.maximum(x, low), high)
+    return min(max(x, low), high)
+
+
+def driver_input(tau_cmd_nm, command_limit_nm, saturation_per_nm, gear_ratio):
+    """What the driver makes of a torque command [N·m, output side]: (the command limited to its current
+    limit [N·m], the dcmotor's input: the torque it delivers, ``CurrentToTorqueMap.delivered_nm``, motor side
+    [N·m]). Floats, or arrays across plants."""
+    tau_nm = clip(tau_cmd_nm, -command_limit_nm, command_limit_nm)
+    return tau_nm, tau_nm / ((1.0 + saturation_per_nm * abs(tau_nm)) * gear_ratio)
+
+
+def load_frictionloss(load_coefficient, flexure_stiffness_nm_per_rad, flexure_qpos_rad):
+    """The gear joint's frictionloss [N·m] for the torque the flexure transmits: (1 - η)·|K_t·θ|. Floats, or
+    arrays across plants."""
+    return load_coefficient * abs(flexure_stiffness_nm_per_rad * flexure_qpos_rad)
+
+
 class Plant:
     """The GIM8108 + flexure + lever (+ load cell) testbed in one fixture.
 
@@ -94,14 +114,17 @@ class Plant:
     timestep_s : float, optional
         Override the physics step [s] derived by the rule (for convergence studies); must divide the
         control period.
+    nsample : int, optional
+        Samples of the motor's command history (``build_xml``; the delay's own if None): plants of different
+        delays given one ``nsample`` share a data layout, as batched stepping needs (:mod:`sim.batched`).
     """
 
     def __init__(self, params: TestbedParams | None = None, fixture: str = "locked", *,
-                 timestep_s: float | None = None) -> None:
+                 timestep_s: float | None = None, nsample: int | None = None) -> None:
         self.params = params or TestbedParams()
         self.fixture = fixture
         self.derived = derive(self.params)
-        self.model = mujoco.MjModel.from_xml_string(build_xml(self.params, fixture))
+        self.model = mujoco.MjModel.from_xml_string(build_xml(self.params, fixture, nsample))
         control_period = self.params.simulation.control_period_s
         if timestep_s is None:  # the model already carries the rule's step
             self.n_substeps = physics_timestep(self.params, fixture)[1]
@@ -242,15 +265,12 @@ class Plant:
                              f"finite")
         d = self.data
         self._tau_cmd = tau_cmd_nm
-        limit = self._command_limit_nm
         ctrl = self._ctrl
-        tau_nm = min(max(tau_cmd_nm, -limit), limit)
-        ctrl[self._u_motor] = tau_nm / ((1.0 + self._alpha * abs(tau_nm)) * self._gear)  # CurrentToTorqueMap, inlined
+        tau_nm, ctrl[self._u_motor] = driver_input(tau_cmd_nm, self._command_limit_nm, self._alpha, self._gear)
         ctrl[self._u_external] = tau_ext_nm
-        # _set_load_friction inlined (one call less per tick); .item() reads a Python float, whose arithmetic
-        # is cheaper than numpy scalars' (and rounds alike)
-        load_nm = abs(self._k_flexure * self._qpos.item(self._q_flexure))
-        self._frictionloss[self._dof_motor] = self._load_coeff * load_nm
+        # .item() reads a Python float, whose arithmetic is cheaper than numpy scalars' (and rounds alike)
+        self._frictionloss[self._dof_motor] = load_frictionloss(self._load_coeff, self._k_flexure,
+                                                                self._qpos.item(self._q_flexure))
         t_expected = d.time + self._tick_s
         mujoco.mj_step(self.model, d, self.n_substeps)
         # MuJoCo resets the data (time -> 0) when accelerations blow up; a time short of the
@@ -265,15 +285,26 @@ class Plant:
         self._command_sq_sum += tau_nm * tau_nm
         self._ticks += 1
         if self._ticks % self._thermal_ticks == 0:
-            self._advance_thermal()
+            self.advance_thermal(self._command_sq_sum)
+            self._command_sq_sum = 0.0
 
-    def _advance_thermal(self) -> None:
-        """One thermal update with the mean copper loss of its control ticks."""
-        mean_current_sq = self._command_sq_sum / (self._thermal_ticks * self._current_to_torque ** 2)
+    @property
+    def thermal_ticks(self) -> int:
+        """Control ticks per thermal update [-]."""
+        return self._thermal_ticks
+
+    def advance_thermal(self, command_sq_sum_nm2: float) -> float:
+        """One thermal update with the mean copper loss of its control ticks, from the sum of their squared
+        limited commands [N²·m²]; returns the new TMP117 reading [°C]."""
+        mean_current_sq = command_sq_sum_nm2 / (self._thermal_ticks * self._current_to_torque ** 2)
         copper_w = self._winding_resistance_ohm * mean_current_sq
         self.thermal.advance(self._thermal_period_s, copper_w)
         self._tmp117_c = self.thermal.tmp117_reading_c()
-        self._command_sq_sum = 0.0
+        return self._tmp117_c
+
+    def divergence_message(self, t_expected: float) -> str:
+        """Why a tick that should have ended at ``t_expected`` [s] diverged (:class:`SimulationDiverged`)."""
+        return self._divergence_message(t_expected)
 
     def _divergence_message(self, t_expected: float) -> str:
         omega_h = self.omega_max_rad_s * self.timestep_s

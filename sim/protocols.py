@@ -1,13 +1,13 @@
-"""The paper's torque-control protocols (Sec. V) as objects, defined once for the experiments and the environment.
+"""The paper's torque-control protocols (Sec. IV) as objects, defined once for the experiments and the environment.
 
 :data:`PROTOCOLS` (name -> protocol), in the paper's order:
 
-* :class:`Step` (Sec. V-A, Table VI): the reference zero for :data:`PRE_STEP_S`, then 0.05, 0.1 or 0.2 N·m.
-* :class:`Disturbance` (Sec. V-A): regulation at 0.5 N·m while a hand twists the gear's output flange
+* :class:`Step` (Sec. IV-A, Table VI): the reference zero for :data:`PRE_STEP_S`, then 0.05, 0.1 or 0.2 N·m.
+* :class:`Disturbance` (Sec. IV-A): regulation at 0.5 N·m while a hand twists the gear's output flange
   against the motor, its torque growing at a constant rate.
-* :class:`Waveform` (Sec. V-B, Table VII): the 0.05 N·m sine at 0.2 Hz, the 0.1 N·m square at 1 Hz and the
+* :class:`Waveform` (Sec. IV-B, Table VII): the 0.05 N·m sine at 0.2 Hz, the 0.1 N·m square at 1 Hz and the
   10 N·m sine at 0.2 Hz, each from zero phase.
-* :class:`Push` (Sec. V-C, Fig. 13): a hand pushing the free lever slowly and fast.
+* :class:`Push` (Sec. IV-C, Fig. 13): a hand pushing the free lever slowly and fast.
 
 Each gives what is applied at a time t [s] from the protocol's start: ``reference(t)`` [N·m] (the torque
 reference; a Push has none), and ``hub_torque(t)`` (Disturbance) or ``torque_nm(t, angle, velocity)`` (Push)

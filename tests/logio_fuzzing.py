@@ -18,8 +18,8 @@ import argparse
 import codecs
 import multiprocessing
 import random
-import resource
 import re
+import resource
 import struct
 import sys
 import tempfile

@@ -495,6 +495,6 @@ def test_same_data_give_the_same_dict_without_wall_times():
 
 
 def test_defaults_follow_the_paper():
-    """FS = 80 N m (Sec. IV-B) and e_max = 0.2 % FS = 0.16 N m (Eq. 14)."""
+    """FS = 80 N m (Sec. III-B) and e_max = 0.2 % FS = 0.16 N m (Eq. 14)."""
     assert FS_NM == 80.0
     assert pytest.approx(0.16) == cal.E_MAX_NM

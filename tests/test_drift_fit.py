@@ -13,7 +13,7 @@ from sensor import drift_fit as df
 RECOVERY_RTOL = 1e-6
 """Relative recovery of constants from noise-free data."""
 
-# Chamber range of the paper (Sec. IV-C): -10 ... 50 degC; a dense sweep between set points.
+# Chamber range of the paper (Sec. III-C): -10 ... 50 degC; a dense sweep between set points.
 T_C = np.linspace(-10.0, 50.0, 121)
 
 # Eq. 20 constants with a denominator that stays positive on [-10, 50] degC (min 0.96 at -10 degC)
@@ -35,7 +35,7 @@ def test_rational_fit_recovers_eq20_constants_from_noise_free_data():
 
 
 def test_rational_fit_recovers_constants_from_the_papers_seven_set_points():
-    """Seven set points -10, 0, ..., 50 degC (Sec. IV-C) suffice for the five constants."""
+    """Seven set points -10, 0, ..., 50 degC (Sec. III-C) suffice for the five constants."""
     t = np.arange(-10.0, 51.0, 10.0)
     fit = df.fit_rational_drift(t, _eq20(A_TRUE, t))
     np.testing.assert_allclose(fit.coefficients, A_TRUE, rtol=RECOVERY_RTOL)

@@ -20,7 +20,8 @@ from envs import ENV_ID, register_envs
 from envs.randomization import RANDOMIZED_FIELDS
 from envs.torque_tracking import OBSERVATION_NAMES, TorqueTrackingEnv
 from sensor.readout import factory_calibration
-from sim.measurements import MotorEncoder, MotorVelocity
+from sim.lowpass import lowpass_gain
+from sim.measurements import LoadCell, MotorEncoder, MotorVelocity
 from sim.params import TestbedParams, field_range
 from sim.plant import Plant
 from sim.run import run_loop
@@ -92,8 +93,8 @@ def test_a_fresh_interpreter_makes_the_env_after_import_torquebed(code):
 
 def test_the_simulation_packages_register_nothing_and_load_no_gymnasium():
     """``import sim`` and the packages below the environments leave Gymnasium unloaded and the id unregistered."""
-    assert _fresh("import sys; import sim, sim.params, sim.plant, models, sensor.readout, sim.run, controllers.feedback; "
-                  "print('gymnasium' in sys.modules)") == "False"
+    assert _fresh("import sys; import sim, sim.params, sim.plant, models, sensor.readout, sim.run, "
+                  "controllers.feedback; print('gymnasium' in sys.modules)") == "False"
     assert _fresh(f"import gymnasium, sim, sim.plant; print('{ENV_ID}' in gymnasium.registry)") == "False"
 
 
@@ -238,14 +239,19 @@ def test_randomised_motors_never_take_more_than_the_box_nor_more_than_their_own_
 
 
 def test_reward_is_the_normalised_squared_load_cell_error_plus_control_cost():
-    """Without noise, reward = -((τ_loadcell - τ_ref)/s)² - w (u/u_max)² with τ_loadcell read from the plant."""
+    """Without noise, reward = -((τ_loadcell - τ_ref)/s)² - w (u/u_max)² with τ_loadcell the plant's lever-tip
+    torque through the amplifier's low-pass (started at the first reading)."""
     w = 0.5
     env = make(feedback_noise=False, ctrl_cost_weight=w)
     env.reset(seed=0, options={"task": "sine", "amplitude_nm": 0.5, "frequency_hz": 5.0})
+    gain = lowpass_gain(env.params.loadcell.amplifier_bandwidth_hz, env.dt)
+    filtered = None
     for k, u in enumerate((0.0, 0.4, 0.8, -0.3)):
         ref = env.reference.values_nm[k]
         _, reward, *_ = env.step(np.array([u], np.float32))
-        error = env.plant.loadcell_torque_nm - ref
+        true = env.plant.loadcell_torque_nm
+        filtered = true if filtered is None else filtered + gain * (true - filtered)
+        error = filtered - ref
         scale = np.abs(env.reference.values_nm).max()  # the episode's largest |reference|
         assert env.reference.scale_nm == scale
         expected = -(error / scale) ** 2 - w * (float(np.float32(u)) / command_limit_nm(TestbedParams().motor)) ** 2
@@ -261,7 +267,8 @@ def test_reward_is_zero_at_rest_on_a_zero_reference_without_noise():
 
 
 def test_one_step_is_one_tick_of_the_experiments_torque_loop():
-    """A PI on the env's sensor observation reproduces the experiments' loop (sim.run.run_loop): its load-cell torque exactly (noise off)."""
+    """A PI on the env's sensor observation reproduces the experiments' loop (sim.run.run_loop): its load-cell
+    torque exactly (noise off)."""
     env = make(feedback_noise=False, episode_duration_s=0.3)
     obs, _ = env.reset(seed=0, options={"task": "step", "amplitude_nm": 0.1})
     pi = PITorqueController(output_limit_nm=command_limit_nm(TestbedParams().motor))
@@ -275,8 +282,9 @@ def test_one_step_is_one_tick_of_the_experiments_torque_loop():
     feedback = make_feedback("sensor", p.replace(photoreflector={"noise_min_v": 0.0, "noise_max_v": 0.0}), 0,
                              factory_calibration(p))
     log = run_loop(plant, PITorqueController(output_limit_nm=command_limit_nm(p.motor)), env.n_steps,
-                   measurements=[feedback, MotorEncoder(), MotorVelocity()], tau_ref_nm=env.reference.values_nm)
-    np.testing.assert_array_equal(np.array(loadcell), log["force_loadcell"] * p.lever.length_m)
+                   measurements=[feedback, MotorEncoder(), MotorVelocity()], recorded=[LoadCell(p, None)],
+                   tau_ref_nm=env.reference.values_nm)
+    np.testing.assert_array_equal(np.array(loadcell), log["tau_loadcell"])
     assert np.abs(log["force_loadcell"]).max() * p.lever.length_m > 0.05  # the step was followed
 
 

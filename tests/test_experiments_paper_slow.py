@@ -1,4 +1,4 @@
-"""The paper's Tables VI-VII and Sec. V behaviours from the default parameters (slow: ~1-2 min).
+"""The paper's Tables VI-VII and Sec. IV behaviours from the default parameters (slow: ~1-2 min).
 
 Run with ``python -m pytest -m slow``. The tolerance: every figure within a factor 1.5 of the
 paper. The assertion messages list every row beside the paper's value, so a failure shows which figures
@@ -38,7 +38,7 @@ OUT_OF_BAND = {
     "10 N·m sine 0.2 Hz, sensor feedback: RMS error": 1.53,
     "10 N·m sine 0.2 Hz, sensor feedback: peak error": 0.37,
 }
-# Sec. V behaviours not reproduced: the current-feedback square's gear never breaks free (mean |output| 3 % of
+# Sec. IV behaviours not reproduced: the current-feedback square's gear never breaks free (mean |output| 3 % of
 # mean |reference|; 71 % of its small impulse is negative, its offset, not one-sided actuation).
 NOT_REPRODUCED = ("0.1 N·m square 1 Hz, current feedback: one-sided actuation",)
 

@@ -101,7 +101,7 @@ def test_two_mass_drivetrain_oscillates_at_the_resonance_with_the_stated_damping
     up = crossings(t, x)
     period = np.mean(np.diff(up[:6]))
     assert 1 / period == pytest.approx(fr * math.sqrt(1 - zeta**2), rel=2e-3)
-    peaks = [np.max(np.abs(x[(t >= a) & (t < b)])) for a, b in zip(up[:5], up[1:6])]
+    peaks = [np.max(np.abs(x[(t >= a) & (t < b)])) for a, b in zip(up[:5], up[1:6], strict=False)]
     decrement = np.mean(np.log(np.array(peaks[:-1]) / np.array(peaks[1:])))
     assert decrement / math.sqrt(4 * math.pi**2 + decrement**2) == pytest.approx(zeta, rel=0.03)
 
@@ -176,10 +176,7 @@ def test_position_dependent_inertia_conserves_kinetic_energy(joint):
     m0, alpha, v0 = 1.0, 0.5, 2.0
     plant = Plant(joint, m0, inertia_variation=alpha, inertia_length=1.0)
     run = open_loop(plant, np.zeros(1000), v0=v0)
-    if joint == "hinge":
-        mass = m0 * (1 + alpha * np.sin(run.q_true))
-    else:
-        mass = m0 * (1 + alpha * run.q_true)
+    mass = m0 * (1 + alpha * np.sin(run.q_true)) if joint == "hinge" else m0 * (1 + alpha * run.q_true)
     energy = 0.5 * mass * run.v_true**2
     assert energy == pytest.approx(0.5 * m0 * v0**2, rel=1e-3)
     assert np.ptp(run.v_true) > 0.3  # the velocity changes with the inertia

@@ -519,7 +519,8 @@ def _columns(rows=None) -> dict[str, np.ndarray]:
 def _write_columns(path, columns, **mat_variables):
     """Columns as a CSV, Parquet (pyarrow) or v5 .mat (savemat) file, by suffix; no units."""
     if path.suffix == ".csv":
-        write_rows(path, [list(columns)] + [[repr(float(x)) for x in row] for row in zip(*columns.values())])
+        rows = zip(*columns.values(), strict=True)
+        write_rows(path, [list(columns)] + [[repr(float(x)) for x in row] for row in rows])
     elif path.suffix == ".parquet":
         pq.write_table(pa.table(columns), path)
     else:

@@ -154,7 +154,7 @@ def test_resolution_3sigma_by_hand():
 
 
 def test_paper_resolution_figures_are_three_sigma_of_the_stds():
-    """Sec. IV-B: std 0.0160 -> 0.0480 N m (LS), 0.00746 -> 0.0224 N m (QP), ratio 2.14."""
+    """Sec. III-B: std 0.0160 -> 0.0480 N m (LS), 0.00746 -> 0.0224 N m (QP), ratio 2.14."""
     rng = np.random.default_rng(0)
     for std, res3 in ((0.0160, 0.0480), (0.00746, 0.0224)):
         x = rng.standard_normal(10_000)

@@ -150,3 +150,16 @@ def test_every_source_bound_lies_inside_the_valid_range_and_says_where_it_comes_
         text = md["bound_source"]
         assert text.startswith(("assumed:", "paper")) or text[0].isupper(), (path, text)  # or a named datasheet
         assert 0 < len(md["bound_source"]) <= 200, (path, len(md["bound_source"]))
+
+
+# Numerical, not physical: solver time constants and impedances that only set how MuJoCo resolves a contact.
+NUMERICAL = {"friction.load_friction_time_constant_s", "friction.load_friction_impedance",
+             "backlash.stop_time_constant_s", "backlash.stop_impedance"}
+
+
+def test_every_tuned_physical_parameter_has_a_source_bound_to_tune_within():
+    """A value chosen against the paper's figures needs the interval its source allows; numerical ones do not."""
+    tuned = {name for name, _value, _unit, source in TestbedParams().rows() if source.startswith("tuned:")}
+    assert tuned >= NUMERICAL
+    assert sorted(tuned - NUMERICAL - set(bounded_fields())) == []
+    assert not NUMERICAL & set(bounded_fields())

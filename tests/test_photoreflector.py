@@ -4,8 +4,15 @@ import numpy as np
 import pytest
 
 from models.gim8108_testbed.derived import derive
-from sensor.photoreflector import (CHANNELS, PhotoReflectorArray, draw_unit, maxwell_slip, play_operator,
-                                   reference_torque, slip_half_widths)
+from sensor.photoreflector import (
+    CHANNELS,
+    PhotoReflectorArray,
+    draw_unit,
+    maxwell_slip,
+    play_operator,
+    reference_torque,
+    slip_half_widths,
+)
 from sim.params import TestbedParams
 
 P = TestbedParams()
@@ -18,7 +25,7 @@ def twist(tau_nm):
 
 @pytest.mark.parametrize("unit_seed", [0, 1, 2, 3])
 def test_channel_sensitivities_are_the_papers_at_the_operating_point(unit_seed):
-    """dV/dT_z at zero load lies in 0.024-0.04 V/(N·m) for every channel (paper Sec. IV-B)."""
+    """dV/dT_z at zero load lies in 0.024-0.04 V/(N·m) for every channel (paper Sec. III-B)."""
     p = P.replace(photoreflector={"unit_seed": unit_seed})
     sensor = PhotoReflectorArray(p)
     dtau = 1e-3
@@ -44,7 +51,7 @@ def test_the_voltage_swing_at_25_nm_is_the_papers_and_visibly_nonlinear():
 
 
 def test_a_two_volt_swing_is_the_papers_39718_counts():
-    """2 V on a 16-bit, 3.3 V-referenced ADC is 39,718 counts (paper Sec. IV-B)."""
+    """2 V on a 16-bit, 3.3 V-referenced ADC is 39,718 counts (paper Sec. III-B)."""
     assert 2.0 / PhotoReflectorArray(P).lsb_v == pytest.approx(39718, abs=1)
 
 
@@ -103,7 +110,7 @@ def test_play_operator_follows_only_past_its_half_width():
 
 
 def test_off_axis_moments_move_the_channels_by_about_60_mv_at_25_nm():
-    """T_x = 25 N·m changes the channels that see the tilt by about 0.06 V (paper Sec. IV-B)."""
+    """T_x = 25 N·m changes the channels that see the tilt by about 0.06 V (paper Sec. III-B)."""
     sensor = PhotoReflectorArray(P)
     v0 = sensor.ideal_voltages(twist([0.0]))[0]
     vx = sensor.ideal_voltages(twist([0.0]), tx_nm=25.0)[0]
@@ -170,10 +177,7 @@ def test_sensing_chain_step_response_is_the_first_order_closed_form_at_the_sampl
     sensor = PhotoReflectorArray(p, sample_period_s=dt)
     n_before, n_after = 20, 200
     tw = np.concatenate([np.zeros(n_before), np.full(n_after, twist(10.0))])
-    if read_path == "read":
-        v = sensor.read(tw)
-    else:
-        v = np.array([sensor.read_sample_list(x) for x in tw])
+    v = sensor.read(tw) if read_path == "read" else np.array([sensor.read_sample_list(x) for x in tw])
     v_a, v_b = sensor.ideal_voltages(twist([0.0, 10.0]))
     # the step is applied over the period that ends at sample n_before: t - t_step = (k - n_before + 1) dt
     k = np.arange(n_after)

@@ -6,8 +6,13 @@ import numpy as np
 import pytest
 
 from models.gim8108_testbed.derived import derive, lumped_modes_hz
-from sim.characterize import (free_vibration_peak_hz, linearizable_plant, linearized_modes, measure_backlash,
-                              measure_breakaway)
+from sim.characterize import (
+    free_vibration_peak_hz,
+    linearizable_plant,
+    linearized_modes,
+    measure_backlash,
+    measure_breakaway,
+)
 from sim.params import TestbedParams
 from sim.plant import Plant
 from sim.thermal import ThermalState
@@ -101,7 +106,7 @@ def test_rule_step_keeps_the_locked_control_mode_within_2_percent():
 
 @pytest.mark.parametrize("sign", [1.0, -1.0])
 def test_breakaway_is_the_paper_threshold_within_10_percent(sign):
-    """Ramp in the free fixture: the motor starts moving for > 100 ms at 0.13 N·m ± 10 % (paper Sec. V)."""
+    """Ramp in the free fixture: the motor starts moving for > 100 ms at 0.13 N·m ± 10 % (paper Sec. IV)."""
     assert measure_breakaway(P, sign=sign).torque_nm == pytest.approx(0.13, rel=0.10)
 
 

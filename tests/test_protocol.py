@@ -4,8 +4,15 @@ import numpy as np
 import pytest
 
 from sensor.photoreflector import PhotoReflectorArray
-from sensor.protocol import (CALIBRATION_CYCLES, PRELOAD_LABEL, QUIET_S, calibration_schedule, crosstalk_schedule, record,
-                             resolution_schedule)
+from sensor.protocol import (
+    CALIBRATION_CYCLES,
+    PRELOAD_LABEL,
+    QUIET_S,
+    calibration_schedule,
+    crosstalk_schedule,
+    record,
+    resolution_schedule,
+)
 
 DT = 1e-3
 

@@ -14,7 +14,7 @@ def test_the_registry_holds_the_papers_protocols_in_its_order():
     assert STEPS_NM == (0.05, 0.1, 0.2)  # Table VI
     assert [(w.shape, w.amplitude_nm, w.frequency_hz) for w in WAVEFORMS] == [
         ("sine", 0.05, 0.2), ("square", 0.1, 1.0), ("sine", 10.0, 0.2)]  # Table VII
-    assert DISTURBANCE.regulated_nm == 0.5 and DISTURBANCE.max_nm > 2.0  # Sec. V-A: "past 2 N·m"
+    assert DISTURBANCE.regulated_nm == 0.5 and DISTURBANCE.max_nm > 2.0  # Sec. IV-A: "past 2 N·m"
 
 
 def test_the_disturbance_ramps_from_its_start_at_its_rate_to_its_largest_torque():

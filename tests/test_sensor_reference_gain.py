@@ -1,4 +1,4 @@
-"""The ATI MINI85's gain error (paper Sec. IV-A: 1 % FS accuracy) is the calibration's truth.
+"""The ATI MINI85's gain error (paper Sec. III-A: 1 % FS accuracy) is the calibration's truth.
 
 The rig calibrates the sensor against the MINI85's reading (1 + g)·τ, so the calibrated sensor inherits the gain
 error against the true torque, while its errors against the MINI85 (Table III) cannot see it. Both runs use the

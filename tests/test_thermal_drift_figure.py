@@ -1,4 +1,4 @@
-"""The 'zero drift per 1 °C' figure (paper Sec. IV-C) against its noise-free closed form, and its unit spread.
+"""The 'zero drift per 1 °C' figure (paper Sec. III-C) against its noise-free closed form, and its unit spread.
 
 The figure of :func:`experiments.thermal.run_thermal` is the largest slope of the rational fit (Eq. 20) to the
 chamber record over the one-hour tests' temperature range. Without noise, the same slope follows from the

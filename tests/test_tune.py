@@ -3,10 +3,12 @@ and the command line's short mode writes what it promises."""
 
 import json
 
+import numpy as np
 import pytest
 
-from experiments.tune import DEFAULT_GAIN_MARGIN, PAPER_GAINS, TUNE_TASKS, Gains, main, run_episode, tune
-from envs.torque_tracking import TorqueTrackingEnv
+from envs.torque_tracking import OBSERVATION_NAMES, TorqueTrackingEnv
+from envs.torque_tracking_vector import TorqueTrackingVectorEnv
+from experiments.tune import DEFAULT_GAIN_MARGIN, PAPER_GAINS, TUNE_TASKS, Gains, main, run_episodes, tune
 
 
 def test_tuned_gains_are_no_worse_than_the_papers_on_every_task_and_repeat():
@@ -27,11 +29,12 @@ def test_gains_near_instability_fail_the_gain_margin_check():
     """The gains the unconstrained search once returned (Kp 1.04, Ki 14.95 1/s; Kp 1.175 made the loop oscillate on
     the 10 N·m sine) x 2 track that sine far worse than the paper's gains, so the check rejects them; the paper's
     gains x 2 pass it."""
-    env = TorqueTrackingEnv(episode_duration_s=3.0)
     sine = TUNE_TASKS[2]
-    paper = run_episode(env, PAPER_GAINS, sine, seed=2).rms_nm
-    assert run_episode(env, Gains(2 * 1.04, 2 * 14.95), sine, seed=2).rms_nm > 10 * paper
-    assert run_episode(env, Gains(2 * PAPER_GAINS.kp, 2 * PAPER_GAINS.ki_per_s), sine, seed=2).rms_nm <= paper
+    gains = (PAPER_GAINS, Gains(2 * 1.04, 2 * 14.95), Gains(2 * PAPER_GAINS.kp, 2 * PAPER_GAINS.ki_per_s))
+    paper, unstable, doubled = (e.rms_nm for e in run_episodes(TorqueTrackingVectorEnv(3, episode_duration_s=3.0),
+                                                                [(g, sine, 2) for g in gains]))
+    assert unstable > 10 * paper
+    assert doubled <= paper
 
 
 def test_tune_rejects_a_gain_margin_below_one():
@@ -40,14 +43,31 @@ def test_tune_rejects_a_gain_margin_below_one():
 
 
 def test_episode_rms_is_the_load_cell_error_the_env_reports():
-    """run_episode's RMS equals the RMS of the env's tracking errors from the reference's first move on."""
-    env = TorqueTrackingEnv(episode_duration_s=0.2)
-    ep = run_episode(env, PAPER_GAINS, TUNE_TASKS[0], seed=3)
+    """run_episodes' RMS equals the RMS of the env's tracking errors from the reference's first move on."""
+    vec = TorqueTrackingVectorEnv(2, episode_duration_s=0.2)
+    ep, worse = run_episodes(vec, [(PAPER_GAINS, TUNE_TASKS[0], 3),
+                                   (Gains(PAPER_GAINS.kp, 0.1), TUNE_TASKS[0], 3)])  # almost no integral action
     start = next(k for k, r in enumerate(ep.reference_nm) if r != 0.0)
     e = ep.output_nm[start:] - ep.reference_nm[start:]
     assert ep.rms_nm == pytest.approx(float((e ** 2).mean() ** 0.5), rel=1e-12)
-    worse = run_episode(env, Gains(PAPER_GAINS.kp, 0.1), TUNE_TASKS[0], seed=3)  # almost no integral action
     assert worse.rms_nm > ep.rms_nm
+
+
+def test_batched_episodes_are_the_single_env_episodes():
+    """Each of run_episodes' environments runs what the single environment runs for its task and seed: the
+    same load-cell torques, tick for tick."""
+    runs = [(PAPER_GAINS, task, 5 + t) for t, task in enumerate(TUNE_TASKS)]
+    batched = run_episodes(TorqueTrackingVectorEnv(len(runs), episode_duration_s=0.3), runs)
+    env = TorqueTrackingEnv(episode_duration_s=0.3)
+    for (gains, task, seed), episode in zip(runs, batched, strict=True):
+        obs, _ = env.reset(seed=seed, options=task.options)
+        controller = gains.controller(env.nominal_params)
+        out = []
+        for _ in range(env.n_steps):
+            command = controller.step(dict(zip(OBSERVATION_NAMES, obs.tolist(), strict=True)))
+            obs, _, _, _, info = env.step(np.array([command]))
+            out.append(info["loadcell_torque_nm"])
+        np.testing.assert_array_equal(episode.output_nm, out)
 
 
 def test_tune_rejects_an_unknown_feedback_naming_valid_values():

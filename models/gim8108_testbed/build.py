@@ -14,8 +14,14 @@ from typing import TYPE_CHECKING
 import mujoco
 
 from models.errors import ParameterError
-from models.gim8108_testbed.derived import (FIXTURES, SOLVER_TIME_CONSTANTS, derive, implicit_joint_damping,
-                                            physics_timestep, solver_time_constants)
+from models.gim8108_testbed.derived import (
+    FIXTURES,
+    SOLVER_TIME_CONSTANTS,
+    derive,
+    implicit_joint_damping,
+    physics_timestep,
+    solver_time_constants,
+)
 
 if TYPE_CHECKING:
     from sim.params import TestbedParams
@@ -101,11 +107,23 @@ def check_time_constants(p: TestbedParams, fixtures=FIXTURES, source: str | None
     raise ParameterError(f"{message}. Set {settings} in {source if source is not None else 'the parameters'}")
 
 
-def build_xml(p: TestbedParams, fixture: str) -> str:
+def history_samples(p: TestbedParams, fixture: str) -> int:
+    """Samples of the motor actuator's command history [-]: the physics steps of ``motor.command_delay_s``
+    plus two spare slots (0 without a delay)."""
+    if p.motor.command_delay_s <= 0:
+        return 0
+    return int(p.motor.command_delay_s / physics_timestep(p, fixture)[0]) + 2
+
+
+def build_xml(p: TestbedParams, fixture: str, nsample: int | None = None) -> str:
     """MJCF text of the testbed in ``fixture`` ('locked': lever tip on the load cell; 'free': lever turns).
 
+    ``nsample``: samples of the motor's command history, at least :func:`history_samples` (that if None); a
+    longer buffer holds older commands the delay never reads, so the run is the same. Models of different
+    delays share one data layout with a common ``nsample`` (batched stepping, :mod:`sim.batched`).
+
     Raises ParameterError for solver time constants the fixture's physics step cannot resolve
-    (:func:`check_time_constants`)."""
+    (:func:`check_time_constants`), ValueError for an ``nsample`` below :func:`history_samples`."""
     if fixture not in FIXTURES:
         raise ValueError(f"fixture = {fixture!r}: valid values are {FIXTURES}")
     d = derive(p)
@@ -119,8 +137,12 @@ def build_xml(p: TestbedParams, fixture: str) -> str:
     c_lc = d.loadcell_rot_damping_nms_per_rad if locked else 0.0
     half_gap = 0.5 * p.backlash.width_rad
     imp = p.backlash.stop_impedance
-    # The actuator's delay reads a history buffer of nsample control samples; keep two spare slots.
-    nsample = int(p.motor.command_delay_s / h) + 2
+    needed = history_samples(p, fixture)
+    if nsample is None:
+        nsample = needed
+    elif nsample < needed or (needed == 0 and nsample != 0):
+        raise ValueError(f"nsample = {nsample!r}: valid range [{needed}, inf) for motor.command_delay_s = "
+                         f"{p.motor.command_delay_s:g} s (0 without a delay)")
     delay = f'delay="{_f(p.motor.command_delay_s)}" nsample="{nsample}"' if p.motor.command_delay_s > 0 else ""
     ring_r_in = fl.inner_radius_m + fl.beam_length_m
     # Euler's implicit joint damping, off under substeps_rule 'fast' (derived.implicit_joint_damping)

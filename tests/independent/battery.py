@@ -4,8 +4,8 @@
 writes ``DIR/<case>/log.csv``, ``DIR/<case>/rig.toml`` (the true baseline rig the analysis is told, model
 "rigid-joint") and ``DIR/<case>/truth.json`` (the hidden effects, their parameters in the analysis library's
 names, ``in_library``: the effect is one the analysis library is meant to carry, :data:`IN_LIBRARY`; whether the
-current library has it is checked when analysing), and with ``--analyse`` runs the discrepancy analysis on each case and prints a table and
-a summary (also ``DIR/summary.json``).
+current library has it is checked when analysing), and with ``--analyse`` runs the discrepancy analysis on each
+case and prints a table and a summary (also ``DIR/summary.json``).
 
 Cases (30 s at 1 kHz by default; EMPS-like 25 s):
 

@@ -196,7 +196,7 @@ class Plant:
         k = mu * (2 * math.pi * self.resonance_frequency) ** 2
         return m1, m2, k, 2.0 * self.damping_ratio * math.sqrt(k * mu)
 
-    def with_(self, **changes: float) -> "Plant":
+    def with_(self, **changes: float) -> Plant:
         """A copy with ``changes``."""
         return replace(self, **changes)
 
@@ -255,7 +255,7 @@ def multisine(n: int, span: float, seed: int, *, frequencies: tuple[float, ...] 
     phases = rng.uniform(-math.pi, math.pi, len(frequencies))
     s = np.zeros(n)
     sd = np.zeros(n)
-    for f, ph in zip(frequencies, phases):
+    for f, ph in zip(frequencies, phases, strict=True):
         a = span * frequencies[0] / f
         s += a * (np.sin(2 * math.pi * f * t + ph) - math.sin(ph))
         sd += a * 2 * math.pi * f * np.cos(2 * math.pi * f * t + ph)
@@ -339,7 +339,7 @@ class PID:
         self.y_prev: float | None = None
 
     @classmethod
-    def tuned(cls, reference: Reference, mass: float, bandwidth_hz: float, limit: float, **kwargs) -> "PID":
+    def tuned(cls, reference: Reference, mass: float, bandwidth_hz: float, limit: float, **kwargs) -> PID:
         """Gains placing the closed loop of a free mass at (s + ω)³, ω = 2π·bandwidth: kd = 3mω, kp = 3mω²,
         ki = mω³."""
         w = 2 * math.pi * bandwidth_hz

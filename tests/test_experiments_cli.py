@@ -291,37 +291,6 @@ def test_plant_card_with_no_plot_draws_nothing(tmp_path, monkeypatch, capsys):
     assert not any(tmp_path.iterdir())
 
 
-def test_identify_defaults_says_a_short_run_is_short_before_its_ranking(monkeypatch, capsys):
-    """identify_defaults --duration prints the banner the other experiments print before the tables."""
-    from experiments import identify_defaults
-
-    def candidate(params, seed=0, duration_s=None):
-        return [{"table": "VI", "quantity": "q", "unit": "N·m", "paper": 1.0, "sim": 1.1, "ratio": 1.1}], {}
-
-    monkeypatch.setattr(identify_defaults, "GRID", {("backlash", "width_rad"): (0.5e-3,)})
-    monkeypatch.setattr(identify_defaults, "run_candidate", candidate)
-    identify_defaults.main(["--duration", "0.05"])
-    out = capsys.readouterr().out
-    assert out.index("SHORT RUN (--duration 0.05 s)") < out.index("rank") < out.index("best:")
-
-
-def test_identify_defaults_scores_only_the_primary_rows(monkeypatch):
-    """The candidates' rows and scores leave the alternative readings out: a far-off alternative changes nothing."""
-    from types import SimpleNamespace
-
-    from experiments import identify_defaults
-    from experiments.common import ALTERNATIVE, paper_row
-
-    primary = paper_row("VI", "q", "N·m", 1.0, 1.1)
-    rows = [primary, paper_row("VI", "q, whole", "N·m", 1.0, 9.0, reading=ALTERNATIVE, reason="Why.")]
-    fake = SimpleNamespace(rows=lambda: rows, logs=lambda: {})
-    monkeypatch.setattr(identify_defaults, "run_step", lambda *a, **k: fake)
-    monkeypatch.setattr(identify_defaults, "run_sinusoid", lambda *a, **k: fake)
-    candidate_rows, _ = identify_defaults.run_candidate(TestbedParams())
-    assert candidate_rows == [primary, primary]
-    assert identify_defaults.score(candidate_rows)[1] == pytest.approx(math.log(1.1))
-
-
 def test_a_gear_ratio_the_defaults_cannot_simulate_names_it_the_file_and_the_values_to_set(tmp_path, capsys):
     """A file setting only motor.gear_ratio = 36 lengthens the physics step past what the default solver time
     constants resolve: the error names the file, the field it set, both time constants and the value they need

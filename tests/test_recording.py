@@ -220,42 +220,21 @@ def test_plant_card_records_the_breakaway_ramp_and_backlash_reversal_it_measured
     assert card.logs == {} and card.derived == plant.run_plant_card(keep_logs=True).derived
 
 
-def test_identify_defaults_records_the_runs_of_one_short_candidate(tmp_path, monkeypatch, capsys):
-    """experiments.identify_defaults --duration --rerun on a one-candidate grid records that candidate's
-    six step, two disturbance and six sinusoid runs."""
+def test_identify_defaults_records_the_runs_of_its_best_candidate(tmp_path, capsys):
+    """experiments.identify_defaults --rerun records the best candidate's six step, two disturbance and six
+    sinusoid runs, and its parameters are those of best_params.toml; without --rerun nothing is recorded."""
     from experiments import identify_defaults
 
-    monkeypatch.setattr(identify_defaults, "GRID", {("backlash", "width_rad"): (0.5e-3,)})
     path = tmp_path / "best.rrd"
-    identify_defaults.main(["--duration", "0.05", "--rerun", str(path)])
+    argv = ["--budget", "2", "--seeds", "0", "--duration", "0.05", "--fast"]
+    identify_defaults.main([*argv, "--out", str(tmp_path / "run"), "--rerun", str(path)])
     rows, _ = read_back(path)
     roots = {e.split("/")[1] for e in rows}
     assert len(roots) == 14 and rows["/step_0.05_N_m_sensor/torque/reference"] == 550
     assert rows["/disturbance_current/torque/loadcell"] == 50
-    assert rows["/10_N_m_sine_0.2_Hz_sensor/voltages/v1"] == 100
     assert "rerun recording" in capsys.readouterr().out
-
-
-def test_identify_defaults_records_the_best_candidate_not_the_last(tmp_path, monkeypatch, capsys):
-    """The runs kept are those of the candidate ranked first (here the middle one of three, by a stub whose
-    ratio to the paper is exact for 1 mrad); without --rerun nothing is recorded."""
-    from experiments import identify_defaults
-
-    widths = (0.5e-3, 1.0e-3, 2.0e-3)
-
-    def candidate(params, seed=0, duration_s=None):
-        w = params.backlash.width_rad
-        row = {"table": "VI", "quantity": "q", "unit": "N·m", "paper": 1.0, "sim": w / 1e-3, "ratio": w / 1e-3}
-        return [row], {f"candidate {w * 1e3:g} mrad": _series_log(5, tau_cmd=np.zeros(5))}
-
-    monkeypatch.setattr(identify_defaults, "GRID", {("backlash", "width_rad"): widths})
-    monkeypatch.setattr(identify_defaults, "run_candidate", candidate)
-    path = tmp_path / "best.rrd"
-    identify_defaults.main(["--rerun", str(path)])
-    rows, _ = read_back(path)
-    assert set(rows) == {"/candidate_1_mrad/torque/command"}
-    identify_defaults.main([])
-    assert list(tmp_path.iterdir()) == [path]
+    identify_defaults.main([*argv, "--out", str(tmp_path / "plain")])
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["best.rrd", "plain", "run"]
 
 
 @pytest.fixture(scope="module")

@@ -90,7 +90,7 @@ COMMANDS: dict[str, str] = {
     "sinusoid": "sine and square references, current vs sensor feedback (Table VII)",
     "admittance": "admittance control of the free lever pushed slowly and fast (Fig. 13)",
     "paper": "every paper experiment: one table of every figure beside the simulated one, and the behaviours",
-    "identify_defaults": "joint identification of the uncertain defaults within their source bounds (CMA-ES, resumable)",
+    "identify_defaults": "joint identification of the uncertain defaults within their source bounds, resumable",
     "open_loop_step": "torque steps with the driver's current loop only",
     "calibration": "the calibration rig: LS against QP, Tables III-IV",
     "thermal": "the temperature chamber and the one-hour drift tests, Table V",

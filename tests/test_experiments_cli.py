@@ -3,7 +3,6 @@ usage error before anything runs."""
 
 import argparse
 import json
-import math
 import os
 import re
 import subprocess

@@ -91,8 +91,8 @@ class MotorParams:
         "processing, at most 2 ms")
     torque_saturation_per_nm: float = quantity(
         0.0176, "1/(N·m)", "tuned: magnetic saturation τ = τ_cmd/(1 + α·|τ_cmd|) that the driver's "
-        "current-based estimate does not see (Sec. IV-A), 15 % droop at 10 N·m; chosen on the grid of "
-        "experiments/identify_defaults.py against Tables VI-VII (model README, Derivations)", 0.0, 0.025,
+        "current-based estimate does not see (Sec. IV-A), 15 % droop at 10 N·m; chosen on a 16-point grid "
+        "against Tables VI-VII (model README, Derivations)", 0.0, 0.025,
         bound=(0.0, 0.025), bound_source="assumed: the paper notes a nonlinearity (Sec. IV-A), no number; "
         "0-20 % droop at 10 N·m, below the 1/18 at which no current gives 18 N·m")
 
@@ -136,8 +136,8 @@ class GearFrictionParams:
         bound=(0.6, 1.0), bound_source="assumed: 0.6 to critical; LuGre sizes sigma1 from sigma0 and the moving "
         "inertia (Canudas de Wit et al. 1995)")
     load_friction_coefficient: float = quantity(
-        0.05, "1", "tuned: 1 - η of one planetary stage of catalogue efficiency η = 0.95, chosen on the grid of "
-        "experiments/identify_defaults.py against Tables VI-VII; sim.plant writes it per tick into the "
+        0.05, "1", "tuned: 1 - η of one planetary stage of catalogue efficiency η = 0.95, chosen on a 16-point grid "
+        "against Tables VI-VII; sim.plant writes it per tick into the "
         "gear joint's frictionloss (model README, Derivations)", 0.0, 1.0,
         bound=(0.02, 0.04), bound_source="Beckhoff PLE080 catalogue: one planetary stage has η = 96-98 % at full "
         "load, 1 - η = 0.02-0.04 (an industrial gear; SteadyWin gives no η)")
@@ -155,8 +155,8 @@ class BacklashParams:
     """Dead band between gear output and the sensor hub: MuJoCo's hinge with limited range."""
 
     width_rad: float = quantity(
-        5.0e-4, "rad", "tuned: 0.03° dead band of a tight planetary stage, chosen on the grid of "
-        "experiments/identify_defaults.py against Tables VI-VII; the paper reports backlash but no value "
+        5.0e-4, "rad", "tuned: 0.03° dead band of a tight planetary stage, chosen on a 16-point grid "
+        "against Tables VI-VII; the paper reports backlash but no value "
         "(Sec. IV), the vendor's sheet a 15 arcmin bound (model README, Derivations)", 0.0, 0.2,
         low_open=True,
         bound=(2.9e-4, 4.4e-3), bound_source="SteadyWin GIM8108-8: about 15 arcmin (4.4 mrad, via ODrive notes) at "
@@ -247,7 +247,7 @@ class LoadCellParams:
         bound=(0.005, 0.05), bound_source="assumed: 0.5-5 % of critical, bolted aluminium assemblies with their "
         "joints")
     reading_noise_n: float = quantity(
-        0.025, "N", "tuned: inferred in closed form by experiments/identify_defaults.py from Table VI's "
+        0.025, "N", "tuned: inferred in closed form from Table VI's "
         "sensor-feedback step errors, flat across step sizes (a measurement floor); white at 1 kHz, "
         "added to the logged force only (model README, Derivations)", 0.0, 50.0,
         bound=(0.0, 0.026), bound_source="paper Table VI: sensor-feedback step RMS ≤ 0.0026 N·m over the 0.1 m lever "

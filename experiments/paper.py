@@ -155,7 +155,7 @@ def run_paper(params: TestbedParams | None = None, seed: int = 0, duration_s: fl
                                        progress=progress)
     breakaway = measure_breakaway(params).torque_nm
     rows = [row for result in results.values() for row in result.rows()]
-    rows.append(paper_row("V text", "gear breakaway (stiction) torque", "N·m", PAPER_BREAKAWAY_NM, breakaway))
+    rows.append(paper_row("IV text", "gear breakaway (stiction) torque", "N·m", PAPER_BREAKAWAY_NM, breakaway))
     figures = [path for result in results.values() for path in result.plot(plot_dir)] if plot_dir is not None else []
     logs = {name: log for result in results.values() if hasattr(result, "logs") for name, log in result.logs().items()}
     behaviours = _behaviours(results["step"], results["sinusoid"], results["admittance"], breakaway)

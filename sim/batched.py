@@ -154,13 +154,15 @@ class BatchedPlant:
             self._ticks += stepped
         self._until_thermal -= 1
         if self._until_thermal <= 0:  # some testbed may be due (the soonest one is; those not stepped are later)
-            self._thermal_updates()
+            self._thermal_updates(stepped)
         diverged = (self._time < self._t_expected - self._half_step_s) | ~np.isfinite(self._qvel[:, self._dof_motor])
         return diverged if stepped is None else diverged & stepped
 
-    def _thermal_updates(self) -> None:
-        """Each testbed's thermal update when its ticks since reset reach a whole update period."""
-        for i in np.flatnonzero(self._ticks % self._thermal_ticks == 0).tolist():
+    def _thermal_updates(self, stepped: np.ndarray | None) -> None:
+        """The thermal update of each testbed stepped this tick (all if ``stepped`` is None) whose ticks since
+        reset reach a whole update period."""
+        due = self._ticks % self._thermal_ticks == 0
+        for i in np.flatnonzero(due if stepped is None else due & stepped).tolist():
             if self._ticks[i]:
                 self._tmp117_c[i] = self.plants[i].advance_thermal(float(self._command_sq_sum[i]))
                 self._command_sq_sum[i] = 0.0

@@ -136,9 +136,9 @@ class GearFrictionParams:
         bound=(0.6, 1.0), bound_source="assumed: 0.6 to critical; LuGre sizes sigma1 from sigma0 and the moving "
         "inertia (Canudas de Wit et al. 1995)")
     load_friction_coefficient: float = quantity(
-        0.05, "1", "tuned: 1 - η of one planetary stage of catalogue efficiency η = 0.95, chosen on a 16-point grid "
-        "against Tables VI-VII; sim.plant writes it per tick into the "
-        "gear joint's frictionloss (model README, Derivations)", 0.0, 1.0,
+        0.05, "1", "tuned: 1 - η of one planetary stage with η = 0.95 (below its bound's catalogue range), chosen "
+        "on a 16-point grid against Tables VI-VII; sim.plant writes it per tick into the gear joint's "
+        "frictionloss (model README, Derivations)", 0.0, 1.0,
         bound=(0.02, 0.04), bound_source="Beckhoff PLE080 catalogue: one planetary stage has η = 96-98 % at full "
         "load, 1 - η = 0.02-0.04 (an industrial gear; SteadyWin gives no η)")
     load_friction_time_constant_s: float = quantity(

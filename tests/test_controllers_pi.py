@@ -11,7 +11,7 @@ from controllers.pi import PAPER_KI_PER_S, PAPER_KP, PITorqueController
 
 
 def test_paper_gains_are_the_defaults():
-    """Kp = 0.12, Ki = 12.0 1/s, anti-windup 5 1/s, 1 kHz (paper Sec. IV-A)."""
+    """Kp = 0.12, Ki = 12.0 1/s, anti-windup 5 1/s, 1 kHz (paper Sec. IV)."""
     c = PITorqueController(output_limit_nm=18.0)
     assert (c.kp, c.ki_per_s, c.antiwindup_per_s, c.period_s) == (0.12, 12.0, 5.0, 1e-3)
     assert c.feedforward_gain == 1.0  # the reference is the driver's torque command (controllers.pi)

@@ -114,6 +114,29 @@ def test_a_diverging_testbed_is_flagged_with_its_message_and_the_others_go_on():
     assert batch.time_s[1] > 0.0
 
 
+
+def test_a_testbed_left_out_of_a_step_gets_no_thermal_update_when_another_is_due():
+    """Testbed 1 is stepped for one thermal period (one update), then held while testbed 0 runs on through two
+    more of its updates: testbed 1 is updated no more, and its time stays where its last step left it."""
+    p = TestbedParams()
+    batch = BatchedPlant([Plant(p, "locked"), Plant(p, "locked")], nthread=1)
+    batch.reset([0, 1], [0, 0])
+    updates = [0, 0]
+    for i, plant in enumerate(batch.plants):
+        def counted(sq_sum, advance=plant.advance_thermal, i=i):
+            updates[i] += 1
+            return advance(sq_sum)
+        plant.advance_thermal = counted
+    period = batch.plants[0].thermal_ticks
+    for _ in range(period):
+        batch.step(np.array([5.0, 5.0]))
+    assert updates == [1, 1]
+    held_s = batch.time_s[1]
+    for _ in range(2 * period):
+        batch.step(np.array([5.0, 5.0]), ids=np.array([0]))
+    assert updates == [3, 1]
+    assert batch.time_s[1] == held_s
+
 @pytest.mark.parametrize(("action", "message"), [(np.zeros((3, 2)), "expected (2, 1)"),
                                                  (np.array([[0.1], [np.nan]]), "expected finite"),
                                                  (np.zeros(2), "expected (2, 1)")])

@@ -64,7 +64,7 @@ def test_a_held_out_group_leaves_the_score_but_not_the_report():
                 "group": group}
 
     results = [step_result(0.05, 0.3, [row("steps", math.e)]),
-               {"kind": "other", "rows": [row("disturbance", 1.0), row("disturbance", 9.0, "V-A text")]}]
+               {"kind": "other", "rows": [row("disturbance", 1.0), row("disturbance", 9.0, "IV-A text")]}]
     assert ident.seed_score(results)["rms_log_ratio"] == pytest.approx(math.sqrt(0.5))
     assert ident.seed_score(results, holdout="steps")["rms_log_ratio"] == 0.0
     assert "reached fraction 0.05 N·m" not in ident.seed_score(results, holdout="steps")["penalties"]
@@ -137,3 +137,17 @@ def test_each_group_held_out_in_turn_picks_the_candidate_best_without_it_and_sco
     assert held["steps"]["held_out_rms_log_ratio"] == pytest.approx(1.0) and held["steps"]["fit_score"] == 0.0
     assert held["disturbance"]["overrides"] == {"name": "good steps"}
     assert held["disturbance"]["held_out_rms_log_ratio"] == pytest.approx(2.0)
+
+
+def test_a_candidate_the_parameters_refuse_keeps_its_overrides_for_run_case_to_score_infeasible():
+    """Coulomb above the base's breakaway breaks a rule between fields: the overrides come back unchanged."""
+    base = TestbedParams().replace(friction={"breakaway_torque_nm": 0.12, "coulomb_torque_nm": 0.09})
+    overrides = {"friction": {"coulomb_torque_nm": 0.13}}
+    assert ident.candidate_overrides(base, overrides) == overrides
+
+
+@pytest.mark.parametrize("seed", ["-1", str(2**32)])
+def test_a_search_seed_outside_what_cma_takes_is_a_usage_error(seed):
+    with pytest.raises(SystemExit) as exc:
+        ident.main(["--search-seed", seed])
+    assert exc.value.code == 2

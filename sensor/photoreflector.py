@@ -360,7 +360,7 @@ class PhotoReflectorArray:
         out = np.empty_like(v)
         state = v[0] if self._filter_state is None else np.array(self._filter_state)
         for i in range(len(v)):
-            state = self._alpha * state + (1.0 - self._alpha) * v[i]
+            state = sensing_chain(state, v[i], self._alpha, self._one_minus_alpha)
             out[i] = state
         self._filter_state = state.tolist()
         return out

@@ -440,6 +440,9 @@ def main(argv: list[str] | None = None) -> None:
                         help="noise seeds each candidate runs with (default 0,1)")
     parser.add_argument("--search-seed", type=search_seed_arg, default=1, metavar="N",
                         help="seed of the CMA-ES sampling (default 1)")
+    parser.add_argument("--sigma0", type=float, default=0.25, metavar="F",
+                        help="initial step of the search as a fraction of each bound's width, in (0, 1] (default "
+                             "0.25; smaller to refine around the parameters of --params)")
     parser.add_argument("--workers", type=positive_int, default=1, metavar="N", help="local processes (default 1)")
     parser.add_argument("--ray", nargs="?", const="local", default=None, metavar="ADDRESS",
                         help="run the evaluations on a Ray cluster (no address: start one on this machine)")
@@ -460,9 +463,12 @@ def main(argv: list[str] | None = None) -> None:
         base = base.replace(simulation={"substeps_rule": "fast"})
     if args.budget < 2:
         parser.error(f"--budget {args.budget}: valid range [2, inf) evaluations")
+    if not (0.0 < args.sigma0 <= 1.0):
+        parser.error(f"--sigma0 {args.sigma0}: valid range (0, 1] (a fraction of each bound's width)")
     space = default_space(base)
     settings = {"space": [[d.path, d.lo, d.hi] for d in space.dims], "seeds": list(args.seeds),
-                "search_seed": args.search_seed, "substeps_rule": base.simulation.substeps_rule,
+                "search_seed": args.search_seed, "sigma0": args.sigma0,
+                "substeps_rule": base.simulation.substeps_rule,
                 "duration_s": args.duration, "holdout": args.holdout,
                 "params": str(args.params) if args.params else None}
     try:
@@ -492,7 +498,8 @@ def main(argv: list[str] | None = None) -> None:
     print(f"defaults (the base parameters, outside the search): score {defaults.score:.4f}", file=sys.stderr,
           flush=True)
     x0 = space.positions({row[0]: row[1] for row in base.rows()})
-    result = minimise(objective, x0, seed=args.search_seed, budget=args.budget, store=store, progress=progress)
+    result = minimise(objective, x0, seed=args.search_seed, budget=args.budget, sigma0=args.sigma0, store=store,
+                      progress=progress)
     overrides = result.best.record["overrides"]
     rep = report(space, base, result.best_x, result.best, settings, args.holdout, result.evaluations,
                  result.generations)

@@ -151,3 +151,12 @@ def test_a_search_seed_outside_what_cma_takes_is_a_usage_error(seed):
     with pytest.raises(SystemExit) as exc:
         ident.main(["--search-seed", seed])
     assert exc.value.code == 2
+
+
+@pytest.mark.parametrize("sigma0", ["0", "-0.1", "1.5"])
+def test_an_initial_step_outside_the_unit_box_is_a_usage_error_naming_its_range(sigma0, capsys):
+    with pytest.raises(SystemExit) as exc:
+        ident.main(["--sigma0", sigma0])
+    assert exc.value.code == 2
+    err = capsys.readouterr().err
+    assert "--sigma0" in err and "(0, 1]" in err

@@ -70,7 +70,7 @@ from experiments.common import (
     write_json,
 )
 from experiments.paper import ACTUATION_LEVEL, ONE_SIDED_SHARE, PAPER_BREAKAWAY_NM
-from experiments.search import Dimension, Evaluation, SearchStore, Space, log_scaled, minimise
+from experiments.search import Dimension, Evaluation, SearchResult, SearchStore, Space, log_scaled, minimise
 from experiments.sinusoid import SinusoidResult, run_sinusoid, run_sinusoid_case
 from experiments.step import (
     PAPER_DISTURBANCE_LOST_NM,
@@ -368,6 +368,9 @@ def markdown(rep: dict[str, Any]) -> str:
              f"rule {s['substeps_rule']}, "
              + ("full-length tests." if s["duration_s"] is None else
                 f"**tests cut to {s['duration_s']:g} s: not comparable with the paper's figures.**"), ""]
+    if rep.get("base_kept"):
+        lines += ["No candidate of the search scored below the base parameters: the result is the base parameters "
+                  "(the figures below are theirs).", ""]
     if rep["holdout"]:
         lines += [f"Held out of the fit: **{rep['holdout']}**; its RMS ln(sim/paper) with the best candidate: "
                   f"{num(rep['holdout_score'])}.", ""]
@@ -399,6 +402,15 @@ def markdown(rep: dict[str, Any]) -> str:
     lines += [f"| {g} | {v['fit_score']:.4f} | {v['held_out_rms_log_ratio']:.4f} | {rep['group_scores'][g]:.4f} |"
               for g, v in rep["rotation"].items()]
     return "\n".join(lines) + "\n"
+
+
+def choose_best(result: SearchResult, base: Evaluation, base_x: np.ndarray) -> tuple[Evaluation, np.ndarray, bool]:
+    """The search's best candidate, or the base parameters if no candidate scored below them.
+
+    Returns the evaluation, its position in the unit box and whether it is the base's."""
+    if base.score <= result.best.score:
+        return base, np.asarray(base_x, dtype=float), True
+    return result.best, result.best_x, False
 
 
 def run_candidate(params: TestbedParams, seed: int = 0,
@@ -500,9 +512,10 @@ def main(argv: list[str] | None = None) -> None:
     x0 = space.positions({row[0]: row[1] for row in base.rows()})
     result = minimise(objective, x0, seed=args.search_seed, budget=args.budget, sigma0=args.sigma0, store=store,
                       progress=progress)
-    overrides = result.best.record["overrides"]
-    rep = report(space, base, result.best_x, result.best, settings, args.holdout, result.evaluations,
-                 result.generations)
+    best, best_x, kept_base = choose_best(result, defaults, x0)
+    overrides = best.record["overrides"]
+    rep = report(space, base, best_x, best, settings, args.holdout, result.evaluations, result.generations)
+    rep["base_kept"] = kept_base
     rep["seconds"] = time.perf_counter() - start
     rep["defaults_score"] = defaults.score
     rep["rotation"] = rotation([e.record for e in store.cached().values()], args.holdout)
@@ -511,13 +524,16 @@ def main(argv: list[str] | None = None) -> None:
             from_file = tomllib.load(fh)
         overrides = {g: {**from_file.get(g, {}), **overrides.get(g, {})} for g in {**from_file, **overrides}}
     (args.out / "best_params.toml").write_text(params_toml(
-        overrides, f"experiments.identify_defaults: score {result.best.score:.4f} "
+        overrides, f"experiments.identify_defaults: score {best.score:.4f} "
                    f"({result.evaluations} evaluations, seeds {list(args.seeds)}, "
                    f"substeps rule {base.simulation.substeps_rule})"))
     write_json(args.out / "report.json", rep)
     (args.out / "report.md").write_text(markdown(rep))
     short_run_banner(args)
-    print(f"best score {result.best.score:.4f} after {result.evaluations} evaluations ({result.generations} "
+    if kept_base:
+        print(f"no candidate scored below the base parameters ({defaults.score:.4f}; the search's best "
+              f"{result.best.score:.4f}): they are the result")
+    print(f"best score {best.score:.4f} after {result.evaluations} evaluations ({result.generations} "
           f"generations, {rep['seconds']:.0f} s); the defaults score {defaults.score:.4f}")
     for p in rep["parameters"]:
         edge = f"  ON THE {p['edge'].upper()} EDGE" if p["edge"] else ""

@@ -160,3 +160,16 @@ def test_an_initial_step_outside_the_unit_box_is_a_usage_error_naming_its_range(
     assert exc.value.code == 2
     err = capsys.readouterr().err
     assert "--sigma0" in err and "(0, 1]" in err
+
+
+def test_the_base_parameters_are_the_result_when_no_candidate_scores_below_them():
+    from experiments.search import Evaluation, SearchResult
+
+    base = Evaluation(0.4, {"overrides": {}})
+    found = Evaluation(0.5, {"overrides": {"friction": {"coulomb_torque_nm": 0.1}}})
+    result = SearchResult(np.array([0.2, 0.8]), found, 10, 1, [])
+    best, x, kept = ident.choose_best(result, base, [0.5, 0.5])
+    assert kept and best is base and x.tolist() == [0.5, 0.5]
+    better = Evaluation(0.3, found.record)
+    best, x, kept = ident.choose_best(SearchResult(np.array([0.2, 0.8]), better, 10, 1, []), base, [0.5, 0.5])
+    assert not kept and best is better and x.tolist() == [0.2, 0.8]

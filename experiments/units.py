@@ -239,7 +239,6 @@ def plot_spreads(result: UnitsResult, directory: Path) -> Path:
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
-
     from matplotlib.ticker import FixedLocator, NullFormatter
 
     figures = [f for f in result.figures if not f.same_for_every_unit]

@@ -132,8 +132,9 @@ def test_the_command_prints_the_table_and_writes_the_json(tmp_path, monkeypatch,
     assert "units: 3/3" in err
     data = json.loads(path.read_text())
     assert data["units"] == [0, 1, 2] and data["run"]["units"] == 3 and data["run"]["seed"] == 0
-    assert data["figures"][0]["percentile_pct"] == pytest.approx(100 * 0.5 / 3) and data["figures"][0]["values"] == {"0": 1.0, "1": 2.0,
-                                                                                             "2": 3.0}
+    first = data["figures"][0]
+    assert first["percentile_pct"] == pytest.approx(100 * 0.5 / 3)
+    assert first["values"] == {"0": 1.0, "1": 2.0, "2": 3.0}
 
 
 def test_the_plot_draws_the_unit_dependent_figures(tmp_path):

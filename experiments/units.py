@@ -12,8 +12,8 @@ III-V and Sec. III-C the output gives the units' minimum, median and maximum, th
 the paper's, plus half of those equal to it) / the units with the figure. A unit whose calibration or thermal
 experiment fails is counted and named with its error, and has no figure of that experiment; a unit whose
 rational drift fit (Eq. 20) is rejected is named with the model its compensation uses instead. Figure:
-``units_spread.png`` (each figure's units on a log axis, normalised by the paper's value). About 10 s per unit
-and core.
+``units_spread.png`` (each figure's units on a log axis, normalised by the paper's value). 5-30 s of CPU per
+unit (``benchmarks/README.md``).
 """
 
 from __future__ import annotations

@@ -11,7 +11,8 @@ III-V and Sec. III-C the output gives the units' minimum, median and maximum, th
 (``unit_seed`` 0 by default) and the paper's percentile among the units: 100 x (the units whose figure is below
 the paper's, plus half of those equal to it) / the units with the figure. A unit whose calibration or thermal
 experiment fails is counted and named with its error, and has no figure of that experiment; a unit whose
-rational drift fit (Eq. 20) is rejected is named with the model its compensation uses instead. Figure:
+rational drift fit (Eq. 20) is rejected is named with the model its compensation uses instead. Figures the same
+for every unit (the MINI85's one-hour errors: the reference, not the sensor) are printed apart. Figure:
 ``units_spread.png`` (each figure's units on a log axis, normalised by the paper's value). 5-30 s of CPU per
 unit (``benchmarks/README.md``).
 """
@@ -282,7 +283,10 @@ def main(argv: list[str] | None = None) -> int:
     if args.units > _max_units(params):
         parser.error(f"--units {args.units}: valid range [1, {_max_units(params)}] (unit_seed is at most "
                      f"{_max_units(params) - 1})")
-    executor = Executor(args.workers, ray=args.ray, progress=stderr_progress("units"))
+    try:
+        executor = Executor(args.workers, ray=args.ray, progress=stderr_progress("units"))
+    except RuntimeError as exc:  # Ray asked for but not installed
+        parser.error(f"--ray: {exc}")
     print(f"calibration and thermal experiments on {args.units} sensor units, on {executor.where} ...",
           file=sys.stderr, flush=True)
     start = time.perf_counter()

@@ -94,6 +94,7 @@ COMMANDS: dict[str, str] = {
     "open_loop_step": "torque steps with the driver's current loop only",
     "calibration": "the calibration rig: LS against QP, Tables III-IV",
     "thermal": "the temperature chamber and the one-hour drift tests, Table V",
+    "units": "the sensor's Tables III-V figures over manufactured units: their spread, the paper's percentile",
     "tune": "PI gains tuned on the Gymnasium environment, against the paper's",
     "discrepancy": "what the simulation gets wrong about a measured log, why, and how much a better model gains",
     "discrepancy_demo": "a synthetic log with one effect hidden, to try the discrepancy analysis on",

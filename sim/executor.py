@@ -5,7 +5,8 @@
 one-machine cluster). ``map(fn, items, shared=...)`` returns ``[fn(shared, item) for item in items]`` in the
 items' order, whatever ran where: a function that draws its random numbers from seeds carried by its item gives
 the same result on one core, on many, or on a cluster. ``shared`` (a model, a parameter set) is sent once per
-worker, not once per item.
+worker, not once per item. Every item runs with one BLAS thread (Ray's workers have one; a linear-algebra result
+can differ in its last bits with the thread count), which also keeps N workers from oversubscribing N cores.
 
 The function must be importable by name (a module-level function), as for any process pool.
 """
@@ -18,6 +19,8 @@ from collections.abc import Callable, Iterable, Sequence
 from concurrent.futures import ProcessPoolExecutor, as_completed
 from typing import Any
 
+import threadpoolctl
+
 RAY_EXTRA = 'pip install -e ".[ray]"'
 
 _shared: Any = None  # the shared object of a worker process, set by its initialiser
@@ -29,11 +32,13 @@ def _set_shared(shared: Any) -> None:
 
 
 def _call_with_shared(fn: Callable, item: Any) -> Any:
-    return fn(_shared, item)
+    return _call(fn, _shared, item)
 
 
 def _call(fn: Callable, shared: Any, item: Any) -> Any:
-    return fn(shared, item)
+    """``fn(shared, item)`` with one BLAS thread (the count restored after)."""
+    with threadpoolctl.threadpool_limits(limits=1, user_api="blas"):
+        return fn(shared, item)
 
 
 class Executor:
@@ -82,7 +87,7 @@ class Executor:
         if self.workers == 1 or len(items) <= 1:
             results = []
             for item in items:
-                results.append(fn(shared, item))
+                results.append(_call(fn, shared, item))
                 self._tick(len(results), len(items))
             return results
         return self._map_processes(fn, items, shared)

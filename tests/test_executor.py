@@ -53,3 +53,17 @@ def test_a_ray_cluster_gives_the_same_results_as_local_processes():
     pytest.importorskip("ray")
     seeds = list(range(8))
     assert Executor(ray="local").map(noisy_mean, seeds, shared=2.0) == Executor(2).map(noisy_mean, seeds, shared=2.0)
+
+
+def blas_thread_counts(shared, item) -> list[int]:
+    import threadpoolctl
+
+    return [i["num_threads"] for i in threadpoolctl.threadpool_info() if i["user_api"] == "blas"]
+
+
+@pytest.mark.parametrize("executor", [lambda: Executor(1), lambda: Executor(2)], ids=["this process", "2 processes"])
+def test_every_item_runs_with_one_blas_thread_wherever_it_runs(executor):
+    """One BLAS thread per item: Ray's workers have one, and a linear-algebra result can differ in its last bits
+    with the thread count."""
+    counts = executor().map(blas_thread_counts, range(3))
+    assert all(c and set(c) == {1} for c in counts)

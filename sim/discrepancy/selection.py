@@ -53,7 +53,6 @@ from dataclasses import dataclass, field, replace
 from typing import Any
 
 import numpy as np
-import threadpoolctl
 
 from sim.discrepancy.effects import EFFECTS
 from sim.discrepancy.fit import FitOutcome, at_bound_of, fit_keys, standard_errors
@@ -306,20 +305,7 @@ def against_model_log(candidate: Candidate, model_log_model: Surrogate, theta: d
 
 
 # ------------------------------------------------------------------------------ the round's fits (sim.executor)
-_blas_limited = False  # set once in a worker process: its BLAS runs one thread
-
-
 def _fit(model: Surrogate, args: tuple) -> Candidate:
-    return fit_candidate(model, *args)
-
-
-def _fit_one_blas_thread(model: Surrogate, args: tuple) -> Candidate:
-    """:func:`_fit` in a worker process limited to one BLAS thread (the workers share the cores; the small
-    products of a fit gain nothing from BLAS threads that would compete with the other workers)."""
-    global _blas_limited
-    if not _blas_limited:
-        threadpoolctl.threadpool_limits(limits=1, user_api="blas")
-        _blas_limited = True
     return fit_candidate(model, *args)
 
 
@@ -333,11 +319,10 @@ def run_round(model: Surrogate, candidates: list[str], theta: dict[str, float], 
               scales: dict[str, float], before: ChannelScore, executor: Executor | None = None,
               progress: bool = False, label: str = "") -> list[Candidate]:
     """Fit and score every candidate (on ``executor``; default: this process), best ΔBIC first; one progress
-    line per candidate. Worker processes run one BLAS thread each; this process keeps its own count."""
+    line per candidate. Each fit runs with one BLAS thread (:mod:`sim.executor`); this process keeps its own count."""
     executor = executor or Executor()
     args = [(effect, theta, accepted, scales, before) for effect in candidates]
-    parallel = executor.workers > 1 or executor.ray_address is not None
-    scores = executor.map(_fit_one_blas_thread if parallel else _fit, args, shared=model)
+    scores = executor.map(_fit, args, shared=model)
     if progress:
         for i, c in enumerate(scores, start=1):
             verdict = "passes" if c.passes else f"rejected ({c.rejected_by})"

@@ -78,21 +78,22 @@ class MotorParams:
         0.3, "Ω", "assumed: dc-equivalent winding resistance of an 8108 outrunner, used for copper losses "
         "(heat into the thermal model) and back-EMF bookkeeping", 0.0, 100.0, low_open=True)
     current_loop_time_constant_s: float = quantity(
-        1.6e-4, "s", "assumed: first-order closed current loop of 1 kHz bandwidth, 1/(2π·1 kHz); the "
-        "driver accepts torque commands up to 2 kHz (paper Sec. II)", 0.0, 0.1, low_open=True,
+        1.14e-4, "s", "identified: first-order closed current loop, 1.4 kHz bandwidth; experiments.identify_defaults "
+        "within the bound below (models/gim8108_testbed/identification.md)", 0.0, 0.1, low_open=True,
         bound=(8.0e-5, 8.0e-4), bound_source="assumed: closed current loop of 200 Hz to 2 kHz bandwidth; the paper's "
         "2 kHz is a command rate, not a loop bandwidth")
     peak_torque_nm: float = quantity(
         18.0, "N·m", "paper Sec. II: GIM8108 maximum torque at the output", 0.0, 1000.0, low_open=True)
     command_delay_s: float = quantity(
-        5.0e-4, "s", "assumed: CAN-FD transfer and driver processing of one torque command; the paper "
-        "gives none", 0.0, 0.05,
+        1.79e-3, "s", "identified: CAN-FD transfer, one 1 kHz tick and the driver's processing of a torque command; "
+        "experiments.identify_defaults within the bound below (models/gim8108_testbed/identification.md)", 0.0, 0.05,
         bound=(0.0, 2.0e-3), bound_source="assumed: a CAN-FD frame (tens of µs), one 1 kHz tick and the driver's "
         "processing, at most 2 ms")
     torque_saturation_per_nm: float = quantity(
-        0.0176, "1/(N·m)", "tuned: magnetic saturation τ = τ_cmd/(1 + α·|τ_cmd|) that the driver's "
-        "current-based estimate does not see (Sec. IV-A), 15 % droop at 10 N·m; chosen on a 16-point grid "
-        "against Tables VI-VII (model README, Derivations)", 0.0, 0.025,
+        0.0232, "1/(N·m)", "identified: magnetic saturation τ = τ_cmd/(1 + α·|τ_cmd|) that the driver's current-based "
+        "estimate "
+        "does not see (Sec. IV-A), 19 % droop at 10 N·m; experiments.identify_defaults within the bound "
+        "below (models/gim8108_testbed/identification.md)", 0.0, 0.025,
         bound=(0.0, 0.025), bound_source="assumed: the paper notes a nonlinearity (Sec. IV-A), no number; "
         "0-20 % droop at 10 N·m, below the 1/18 at which no current gives 18 N·m")
 
@@ -107,17 +108,23 @@ class GearFrictionParams:
         bound=(0.117, 0.143), bound_source="paper Sec. IV: stiction threshold '≈ 0.13 N·m'; ±10 % assumed "
         "for the '≈'")
     coulomb_torque_nm: float = quantity(
-        0.09, "N·m", "assumed: sliding level ~0.7 of breakaway, typical Stribeck drop of greased "
-        "planetary stages", 0.0, INF, low_open=True,
+        0.0855, "N·m", "identified: sliding level 0.66 of the 0.13 N·m breakaway; experiments.identify_defaults "
+        "against "
+        "Tables VI-VII and the described behaviours, within the bound below "
+        "(models/gim8108_testbed/identification.md)", 0.0, INF, low_open=True,
         bound=(0.065, 0.13), bound_source="assumed: 0.5-1.0x the 0.13 N·m breakaway, the Stribeck drop of greased "
         "gear stages")
     stribeck_velocity_rad_s: float = quantity(
-        0.05, "rad/s", "assumed: output-side Stribeck velocity of a greased planetary stage", 0.0, INF,
+        0.0408, "rad/s", "identified: output-side Stribeck velocity; experiments.identify_defaults within the bound "
+        "below "
+        "(models/gim8108_testbed/identification.md)", 0.0, INF,
         low_open=True,
         bound=(0.01, 0.2), bound_source="assumed: output-side Stribeck velocity of a greased planetary stage, "
         "0.01-0.2 rad/s; neither the paper nor the vendor gives one")
     viscous_nms_per_rad: float = quantity(
-        0.02, "N·m·s/rad", "assumed: output-side viscous friction of grease and bearings", 0.0, INF,
+        0.00788, "N·m·s/rad", "identified: output-side viscous friction of grease and bearings; "
+        "experiments.identify_defaults "
+        "within the bound below (models/gim8108_testbed/identification.md)", 0.0, INF,
         bound=(0.005, 0.08), bound_source="assumed: 0.25-4x the default; neither the paper nor the vendor gives a "
         "viscous coefficient")
     output_viscous_share: float = quantity(
@@ -125,8 +132,10 @@ class GearFrictionParams:
         "seal), on the output side of the backlash dead band; it damps the free output inside the gap "
         "(model README, Derivations)", 0.0, 1.0)
     presliding_stiffness_nm_per_rad: float = quantity(
-        2000.0, "N·m/rad", "assumed: LuGre bristle stiffness sigma0 at the output; presliding "
-        "displacement breakaway/sigma0 = 65 µrad (~0.65 µm at a 10 mm gear pitch radius)", 0.0, INF,
+        3120.0, "N·m/rad", "identified: LuGre bristle stiffness sigma0 at the output, presliding displacement "
+        "breakaway/sigma0 "
+        "= 42 µrad; experiments.identify_defaults within the bound below "
+        "(models/gim8108_testbed/identification.md)", 0.0, INF,
         low_open=True,
         bound=(500.0, 8000.0), bound_source="assumed: presliding displacement breakaway/sigma0 of 16-260 µrad at the "
         "output (0.16-2.6 µm at a 10 mm pitch radius)")
@@ -136,9 +145,9 @@ class GearFrictionParams:
         bound=(0.6, 1.0), bound_source="assumed: 0.6 to critical; LuGre sizes sigma1 from sigma0 and the moving "
         "inertia (Canudas de Wit et al. 1995)")
     load_friction_coefficient: float = quantity(
-        0.05, "1", "tuned: 1 - η of one planetary stage with η = 0.95 (below its bound's catalogue range), chosen "
-        "on a 16-point grid against Tables VI-VII; sim.plant writes it per tick into the gear joint's "
-        "frictionloss (model README, Derivations)", 0.0, 1.0,
+        0.0397, "1", "identified: 1 - η of one planetary stage (η = 96 %); sim.plant writes it per tick into the gear "
+        "joint's frictionloss; experiments.identify_defaults within the bound below "
+        "(models/gim8108_testbed/identification.md)", 0.0, 1.0,
         bound=(0.02, 0.04), bound_source="Beckhoff PLE080 catalogue: one planetary stage has η = 96-98 % at full "
         "load, 1 - η = 0.02-0.04 (an industrial gear; SteadyWin gives no η)")
     load_friction_time_constant_s: float = quantity(
@@ -155,9 +164,10 @@ class BacklashParams:
     """Dead band between gear output and the sensor hub: MuJoCo's hinge with limited range."""
 
     width_rad: float = quantity(
-        5.0e-4, "rad", "tuned: 0.03° dead band of a tight planetary stage, chosen on a 16-point grid "
-        "against Tables VI-VII; the paper reports backlash but no value "
-        "(Sec. IV), the vendor's sheet a 15 arcmin bound (model README, Derivations)", 0.0, 0.2,
+        3.81e-4, "rad", "identified: 1.3 arcmin dead band of the planetary stage (the paper reports backlash, no "
+        "value, "
+        "Sec. IV); experiments.identify_defaults within the vendor's bound below "
+        "(models/gim8108_testbed/identification.md)", 0.0, 0.2,
         low_open=True,
         bound=(2.9e-4, 4.4e-3), bound_source="SteadyWin GIM8108-8: about 15 arcmin (4.4 mrad, via ODrive notes) at "
         "most; 1 arcmin (0.29 mrad), the tightest planetary class, assumed as least")
@@ -253,8 +263,9 @@ class LoadCellParams:
         bound=(0.0, 0.026), bound_source="paper Table VI: sensor-feedback step RMS ≤ 0.0026 N·m over the 0.1 m lever "
         "bounds the reading noise by 0.026 N (the loop adds ≥ 0)")
     amplifier_bandwidth_hz: float = quantity(
-        1000.0, "Hz", "assumed: −3 dB frequency of the load cell's amplifier, a first-order low-pass on the force "
-        "signal logged at the control rate; the paper names no amplifier for the SBA-50L (sim.lowpass)",
+        1760.0, "Hz", "identified: −3 dB frequency of the load cell's amplifier, a first-order low-pass on the force "
+        "logged at the control rate (sim.lowpass); experiments.identify_defaults within the bound below "
+        "(models/gim8108_testbed/identification.md)",
         0.0, 1.0e6, low_open=True,
         bound=(10.0, 5000.0), bound_source="assumed: ≥ 10 Hz, as its lag alone on Table VII's 10 N·m 0.2 Hz sine "
         "stays ≤ 0.152 N·m RMS; ≤ 5 kHz, an analog strain-gauge amplifier (1-10 kHz)")

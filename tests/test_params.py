@@ -2,9 +2,12 @@
 
 import dataclasses
 import math
+import tomllib
+from pathlib import Path
 
 import pytest
 
+import models.gim8108_testbed
 from models.gim8108_testbed.build import build_xml
 from sim.params import ParameterError, TestbedParams, bound_source, bounded_fields, load_params, quantity, source_bound
 
@@ -17,8 +20,8 @@ def test_every_parameter_has_unit_source_and_a_default_inside_its_range():
     for name, _value, unit, source in rows:
         assert unit, name
         kind = source.split(":")[0]
-        assert kind.startswith("paper ") or kind in {"assumed", "tuned", "rule", "TI TMP117 datasheet"}, (
-            name, source)
+        kinds = {"assumed", "tuned", "identified", "rule", "TI TMP117 datasheet"}
+        assert kind.startswith("paper ") or kind in kinds, (name, source)
 
 
 def test_every_source_says_where_its_value_comes_from_in_at_most_300_characters():
@@ -115,22 +118,7 @@ def _field(path: str) -> tuple[object, dataclasses.Field]:
     return getattr(obj, name), next(f for f in dataclasses.fields(obj) if f.name == name)
 
 
-# Defaults outside the bound their source allows. The bound stays honest and the default stays until the
-# identification that sets the defaults moves it; strict, so a fix shows up as an unexpected pass.
-OUTSIDE_SOURCE_BOUND = ("friction.load_friction_coefficient", "photoreflector.quadratic_fraction_max",
-                        "photoreflector.cubic_fraction_max", "photoreflector.quartic_fraction_max")
-
-
-def _default_in_bound_case(path: str):
-    if path not in OUTSIDE_SOURCE_BOUND:
-        return path
-    value, f = _field(path)
-    reason = (f"{path} = {value:g} lies outside its source bound {list(f.metadata['bound'])} "
-              f"({f.metadata['bound_source']})")
-    return pytest.param(path, marks=pytest.mark.xfail(strict=True, reason=reason))
-
-
-@pytest.mark.parametrize("path", [_default_in_bound_case(p) for p in bounded_fields()])
+@pytest.mark.parametrize("path", bounded_fields())
 def test_every_default_lies_inside_the_bound_its_source_allows(path):
     """A default [lo, hi] from its source's spread (datasheet, paper, or a stated assumption)."""
     value, _ = _field(path)
@@ -159,7 +147,20 @@ NUMERICAL = {"friction.load_friction_time_constant_s", "friction.load_friction_i
 
 def test_every_tuned_physical_parameter_has_a_source_bound_to_tune_within():
     """A value chosen against the paper's figures needs the interval its source allows; numerical ones do not."""
-    tuned = {name for name, _value, _unit, source in TestbedParams().rows() if source.startswith("tuned:")}
+    tuned = {name for name, _value, _unit, source in TestbedParams().rows()
+             if source.startswith(("tuned:", "identified:"))}
     assert tuned >= NUMERICAL
     assert sorted(tuned - NUMERICAL - set(bounded_fields())) == []
     assert not NUMERICAL & set(bounded_fields())
+
+
+def test_the_identified_defaults_are_the_identifications_values_to_three_significant_figures():
+    """sim/params.py takes every `identified:` default from the identification's parameter file, rounded."""
+    path = Path(models.gim8108_testbed.__file__).parent / "identified_params.toml"
+    identified = {f"{group}.{name}": value for group, values in tomllib.loads(path.read_text()).items()
+                  for name, value in values.items()}
+    marked = {name for name, _value, _unit, source in TestbedParams().rows() if source.startswith("identified:")}
+    assert marked == set(identified)
+    for name, value in identified.items():
+        default, _f = _field(name)
+        assert default == pytest.approx(value, rel=5e-3), name

@@ -320,13 +320,14 @@ class PhotoReflectorParams:
         bound=(973.0, 1622.0), bound_source="paper Sec. III-B: channel sensitivities 0.024-0.04 V/(N·m), times "
         "K_t/l_s at the defaults")
     quadratic_fraction_max: float = quantity(
-        0.04, "1", "assumed: |quadratic term| up to 4 % of the linear one at the 25 N·m calibration span (the paper "
-        "fits x³, x², x per channel, Eq. 10); with the cubic term, 0.2-1.3 % of the swing from a line "
-        "(model README, Derivations)", 0.0, 0.5,
+        0.31, "1", "assumed: |quadratic term| up to 1.5·Δ/d of the linear one at the 25 N·m calibration span: a 1/d² "
+        "reflector response at the 3 mm mid gap over the 0.62 mm gap change at 25 N·m (model README, "
+        "Derivations)", 0.0, 0.5,
         bound=(0.23, 0.47), bound_source="assumed: a 1/d² reflector response at a 2-4 mm gap over the 0.62 mm gap "
         "change at 25 N·m gives 1.5·Δ/d; the TCRT1000 distance curve is not read")
     cubic_fraction_max: float = quantity(
-        0.01, "1", "assumed: |cubic term| up to 1 % of the linear one at the calibration span", 0.0, 0.5,
+        0.085, "1", "assumed: |cubic term| up to 2·(Δ/d)² of the linear one at the calibration span: a 1/d² "
+        "reflector response at the 3 mm mid gap over the 0.62 mm gap change at 25 N·m", 0.0, 0.5,
         bound=(0.048, 0.19), bound_source="assumed: a 1/d² reflector response at a 2-4 mm gap over the 0.62 mm gap "
         "change at 25 N·m gives 2·(Δ/d)²; the TCRT1000 curve is not read")
     operating_point_v: float = quantity(
@@ -360,9 +361,9 @@ class PhotoReflectorParams:
         "slip_fraction_min (model README, Derivations)", 0.0, 1.0,
         bound=(0.006, 0.024), bound_source="assumed: 2-4x the smallest fraction's bound of 0.3-0.6 %")
     quartic_fraction_max: float = quantity(
-        0.004, "1", "assumed: |quartic term| of the optical response, curvature beyond the cubic basis of Eq. 10, up "
-        "to this fraction of the linear one at the calibration span; the eight-channel cubic fit cancels "
-        "it (model README, Derivations)", 0.0, 0.5,
+        0.022, "1", "assumed: |quartic term|, curvature beyond the cubic basis of Eq. 10, up to 2.5·(Δ/d)³ of the "
+        "linear one at the calibration span: a 1/d² reflector response at the 3 mm mid gap over the 0.62 mm "
+        "gap change at 25 N·m (model README, Derivations)", 0.0, 0.5,
         bound=(0.0093, 0.074), bound_source="assumed: a 1/d² reflector response at a 2-4 mm gap over the 0.62 mm gap "
         "change at 25 N·m gives 2.5·(Δ/d)³; the TCRT1000 curve is not read")
     crosstalk_v_per_nm: float = quantity(

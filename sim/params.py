@@ -372,12 +372,16 @@ class PhotoReflectorParams:
         0.3, "1", "assumed: relative channel-to-channel spread of the tilt response", 0.0, 1.0,
         bound=(0.1, 0.5), bound_source="assumed: 10-50 % channel-to-channel spread of the tilt response")
     optical_tempco_per_k: float = quantity(
-        -4.0e-3, "1/K", "assumed: IR LED output falls ~0.4 %/K (TCRT1000-class emitters); scales each channel's "
-        "signal above its dark level", -0.1, 0.1,
-        bound=(-8.0e-3, 0.0), bound_source="assumed: IR emitter output falls 0-0.8 %/K, partly offset by the "
-        "phototransistor's gain; the TCRT1000 temperature curve is not read")
+        -1.5e-3, "1/K", "assumed: temperature coefficient of a coupled TCRT1000-class reflector (IR emitter output "
+        "falls, phototransistor gain rises): the middle of -0.1 to -0.2 %/K; scales each channel's whole output, "
+        "its operating point included (the channel's offset drift)", -0.1, 0.1,
+        bound=(-2.0e-3, -1.0e-3), bound_source="assumed: coupled emitter-phototransistor reflectors change their "
+        "output by -0.1 to -0.2 %/K; the TCRT1000 temperature curve is not read")
     optical_tempco_spread_per_k: float = quantity(
-        2.0e-4, "1/K", "assumed: channel-to-channel spread of that coefficient", 0.0, 0.1)
+        5.0e-4, "1/K", "assumed: channel-to-channel spread of that coefficient, ±0.05 %/K, each channel's device "
+        "anywhere in the coupled range -0.1 to -0.2 %/K", 0.0, 0.1,
+        bound=(0.0, 5.0e-4), bound_source="assumed: the channels' coefficients stay within the coupled devices' "
+        "-0.1 to -0.2 %/K")
     reference_temperature_c: float = quantity(
         25.0, "°C", "assumed: calibration temperature", -40.0, 85.0,
         bound=(20.0, 30.0), bound_source="assumed: calibrated in an air-conditioned laboratory")

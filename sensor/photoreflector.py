@@ -7,9 +7,11 @@ With δ = l_s · play(θ) the surface displacement [m] under the flexure twist �
 
     V_k = g_k(T) · (V0_k + S_k x + Q_k x² + C_k x³ + P_k x⁴) + X_k·(T_x sin φ_j - T_y cos φ_j) + n_k,
     x = s_k l_s θ_k,   θ_k = (1 - f_k) θ + f_k M(θ)
-    g_k(T) = exp(γ_k (T - T_ref))                         (emitter output and detector gain with temperature)
+    g_k(T) = exp(γ_k (T - T_ref))     (the coupled emitter-detector device's temperature coefficient γ_k)
 
-then a first-order sensing chain of the rated bandwidth and the ADC (``adc_bits`` over ``adc_reference_v``).
+g_k scales the operating point V0_k too (the channel's offset drift, γ_k·V0_k per kelvin); every channel is read
+at the board temperature the caller gives (the TMP117's). Then a first-order sensing chain of the rated
+bandwidth and the ADC (``adc_bits`` over ``adc_reference_v``).
 Hysteresis: the reflective target is bolted to the hub, and its joint micro-slips. ``M`` is a Maxwell-slip
 (Prandtl-Ishlinskii) operator, the mean of :data:`SLIP_ELEMENTS` play operators with half-widths spread
 uniformly up to ``slip_twist_max_rad``: its loops close at the turning points (a play operator's do not). Each

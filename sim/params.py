@@ -331,13 +331,14 @@ class PhotoReflectorParams:
         bound=(973.0, 1622.0), bound_source="paper Sec. III-B: channel sensitivities 0.024-0.04 V/(N·m), times "
         "K_t/l_s at the defaults")
     quadratic_fraction_max: float = quantity(
-        0.04, "1", "assumed: |quadratic term| up to 4 % of the linear one at the 25 N·m calibration span (the paper "
-        "fits x³, x², x per channel, Eq. 10); with the cubic term, 0.2-1.3 % of the swing from a line "
-        "(model README, Derivations)", 0.0, 0.5,
+        0.31, "1", "assumed: |quadratic term| up to 1.5·Δ/d of the linear one at the 25 N·m calibration span: a 1/d² "
+        "reflector response at the 3 mm mid gap over the 0.62 mm gap change at 25 N·m (model README, "
+        "Derivations)", 0.0, 0.5,
         bound=(0.23, 0.47), bound_source="assumed: a 1/d² reflector response at a 2-4 mm gap over the 0.62 mm gap "
         "change at 25 N·m gives 1.5·Δ/d; the TCRT1000 distance curve is not read")
     cubic_fraction_max: float = quantity(
-        0.01, "1", "assumed: |cubic term| up to 1 % of the linear one at the calibration span", 0.0, 0.5,
+        0.085, "1", "assumed: |cubic term| up to 2·(Δ/d)² of the linear one at the calibration span: a 1/d² "
+        "reflector response at the 3 mm mid gap over the 0.62 mm gap change at 25 N·m", 0.0, 0.5,
         bound=(0.048, 0.19), bound_source="assumed: a 1/d² reflector response at a 2-4 mm gap over the 0.62 mm gap "
         "change at 25 N·m gives 2·(Δ/d)²; the TCRT1000 curve is not read")
     operating_point_v: float = quantity(
@@ -371,9 +372,9 @@ class PhotoReflectorParams:
         "slip_fraction_min (model README, Derivations)", 0.0, 1.0,
         bound=(0.006, 0.024), bound_source="assumed: 2-4x the smallest fraction's bound of 0.3-0.6 %")
     quartic_fraction_max: float = quantity(
-        0.004, "1", "assumed: |quartic term| of the optical response, curvature beyond the cubic basis of Eq. 10, up "
-        "to this fraction of the linear one at the calibration span; the eight-channel cubic fit cancels "
-        "it (model README, Derivations)", 0.0, 0.5,
+        0.022, "1", "assumed: |quartic term|, curvature beyond the cubic basis of Eq. 10, up to 2.5·(Δ/d)³ of the "
+        "linear one at the calibration span: a 1/d² reflector response at the 3 mm mid gap over the 0.62 mm "
+        "gap change at 25 N·m (model README, Derivations)", 0.0, 0.5,
         bound=(0.0093, 0.074), bound_source="assumed: a 1/d² reflector response at a 2-4 mm gap over the 0.62 mm gap "
         "change at 25 N·m gives 2.5·(Δ/d)³; the TCRT1000 curve is not read")
     crosstalk_v_per_nm: float = quantity(
@@ -382,12 +383,16 @@ class PhotoReflectorParams:
         0.3, "1", "assumed: relative channel-to-channel spread of the tilt response", 0.0, 1.0,
         bound=(0.1, 0.5), bound_source="assumed: 10-50 % channel-to-channel spread of the tilt response")
     optical_tempco_per_k: float = quantity(
-        -4.0e-3, "1/K", "assumed: IR LED output falls ~0.4 %/K (TCRT1000-class emitters); scales each channel's "
-        "signal above its dark level", -0.1, 0.1,
-        bound=(-8.0e-3, 0.0), bound_source="assumed: IR emitter output falls 0-0.8 %/K, partly offset by the "
-        "phototransistor's gain; the TCRT1000 temperature curve is not read")
+        -1.5e-3, "1/K", "assumed: temperature coefficient of a coupled TCRT1000-class reflector (IR emitter output "
+        "falls, phototransistor gain rises): the middle of -0.1 to -0.2 %/K; scales each channel's whole output, "
+        "its operating point included (the channel's offset drift)", -0.1, 0.1,
+        bound=(-2.0e-3, -1.0e-3), bound_source="assumed: coupled emitter-phototransistor reflectors change their "
+        "output by -0.1 to -0.2 %/K; the TCRT1000 temperature curve is not read")
     optical_tempco_spread_per_k: float = quantity(
-        2.0e-4, "1/K", "assumed: channel-to-channel spread of that coefficient", 0.0, 0.1)
+        5.0e-4, "1/K", "assumed: channel-to-channel spread of that coefficient, ±0.05 %/K, each channel's device "
+        "anywhere in the coupled range -0.1 to -0.2 %/K", 0.0, 0.1,
+        bound=(0.0, 5.0e-4), bound_source="assumed: the channels' coefficients stay within the coupled devices' "
+        "-0.1 to -0.2 %/K")
     reference_temperature_c: float = quantity(
         25.0, "°C", "assumed: calibration temperature", -40.0, 85.0,
         bound=(20.0, 30.0), bound_source="assumed: calibrated in an air-conditioned laboratory")

@@ -19,7 +19,7 @@ from experiments.paper import TARGET_RATIO, run_paper
 
 pytestmark = pytest.mark.slow
 
-# Figures outside the band with the default parameters (ratio sim/paper measured at seed 0, 2026-11-25).
+# Figures outside the band with the default parameters (ratio sim/paper measured at seed 0, 2026-11-27).
 OUT_OF_BAND = {
     # RMS over the disturbance phase until regulation is lost; ours is lost later (0.39 vs 0.3 N·m) from a
     # smaller error, the paper's loss is more abrupt.
@@ -27,16 +27,19 @@ OUT_OF_BAND = {
     # the paper's current-feedback square output reaches ≈ +0.24 N·m (max y ≈ -0.04 N·m, the other root of its
     # peak, would force an RMS >= 0.10 N·m, above its 0.092); ours reaches +0.01 N·m.
     "0.1 N·m square 1 Hz, current feedback: peak error": 0.64,
+    # under sensor feedback the load cell sees the sensor's own error at the board's temperature (1.3 K above the
+    # calibration's) and its reading noise rather than a loop error (docs/fidelity.md).
+    "disturbance, sensor feedback: RMS error": 0.49,
     # backlash impacts at the zero crossings under sensor feedback: sqrt(2·F_net·gap·K) ≈ 0.25 N·m for the
     # 0.5 mrad gap (0.6 N·m at 3.5 mrad); between impacts the low-torque sine tracks better than
-    # the paper's (RMS 0.61x). The peak sits on the band's edge: 1.47 at seed 0, 1.32-1.56 over seeds 0-3, so it
-    # stays listed (this list is not asserted figure by figure).
-    "0.05 N·m sine 0.2 Hz, sensor feedback: RMS error": 0.61,
-    "0.05 N·m sine 0.2 Hz, sensor feedback: peak error": 1.47,
-    "0.1 N·m square 1 Hz, sensor feedback: peak error": 3.76,
-    # the gear sticks briefly at the crests (load-dependent friction): larger RMS, smaller overshoot.
-    "10 N·m sine 0.2 Hz, sensor feedback: RMS error": 1.53,
-    "10 N·m sine 0.2 Hz, sensor feedback: peak error": 0.37,
+    # the paper's (RMS 0.58x).
+    "0.05 N·m sine 0.2 Hz, sensor feedback: RMS error": 0.58,
+    "0.1 N·m square 1 Hz, sensor feedback: peak error": 4.00,
+    # the gear sticks briefly at the crests (load-dependent friction): larger RMS, no overshoot; the output's crest
+    # lands 0.02 N·m from the reference's, which moves with the sensor's error at 10 N·m and the board's
+    # temperature (docs/fidelity.md).
+    "10 N·m sine 0.2 Hz, sensor feedback: RMS error": 1.61,
+    "10 N·m sine 0.2 Hz, sensor feedback: peak error": 0.053,
 }
 # Sec. IV behaviours not reproduced: the current-feedback square's gear never breaks free (mean |output| 3 % of
 # mean |reference|; 71 % of its small impulse is negative, its offset, not one-sided actuation).

@@ -129,6 +129,28 @@ def test_temperature_scales_each_channel_by_its_coefficient():
     assert v[1] / v[0] == pytest.approx(np.exp(sensor.unit.tempco_per_k * 10.0), rel=1e-12)
 
 
+@pytest.mark.parametrize("delta_t_k", [1.0, -10.0, 25.0])
+def test_a_common_coefficient_gives_a_linear_calibration_a_zero_and_a_gain_drift_in_closed_form(delta_t_k):
+    """Straight channels, one coefficient γ for all: every channel's output, its operating point included,
+    scales by g = exp(γ·ΔT), so a linear calibration τ̂ = Σ c_k V_k + c0, exact at the reference temperature,
+    reads τ̂ − τ = (g − 1)·(τ − c0): a zero drift −(g − 1)·c0 and a gain drift (g − 1)·τ."""
+    p = P.replace(photoreflector={"noise_min_v": 0.0, "noise_max_v": 0.0, "quadratic_fraction_max": 0.0,
+                                  "cubic_fraction_max": 0.0, "quartic_fraction_max": 0.0, "slip_fraction_min": 0.0,
+                                  "slip_fraction_max": 0.0, "optical_tempco_spread_per_k": 0.0})
+    sensor = PhotoReflectorArray(p)
+    tau = np.linspace(-25.0, 25.0, 51)
+    v = sensor.ideal_voltages(twist(tau))
+    # each channel's own straight line τ = a_k V_k + b_k, averaged: c_k = a_k / 8, c0 = mean b_k
+    a, b = np.array([np.polyfit(v[:, k], tau, 1) for k in range(CHANNELS)]).T
+    coef, c0 = a / CHANNELS, float(np.mean(b))
+    assert v @ coef + c0 == pytest.approx(tau, abs=1e-9)  # exact at the reference temperature
+    t = np.full(tau.size, p.photoreflector.reference_temperature_c + delta_t_k)
+    warm = sensor.ideal_voltages(twist(tau), temperature_c=t) @ coef + c0
+    g = np.exp(p.photoreflector.optical_tempco_per_k * delta_t_k)
+    assert abs(c0) > 1.0  # the operating points reach the output: the zero drift is not trivially nil
+    assert warm - tau == pytest.approx((g - 1.0) * (tau - c0), abs=1e-9)
+
+
 def test_same_seeds_same_readings_and_unit_seed_picks_the_unit():
     """Noise is reproducible from the run seed; a different unit seed is a different sensor."""
     path = twist(np.linspace(-5, 5, 500))

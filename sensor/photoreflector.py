@@ -59,9 +59,10 @@ def draw_unit(params: TestbedParams) -> SensorUnit:
     rng = np.random.default_rng(pr.unit_seed)
     span_m = params.flexure.sensing_radius_m * CALIBRATION_SPAN_NM / derive(params).flexure_stiffness_nm_per_rad
     sens = rng.uniform(pr.sensitivity_min_v_per_m, pr.sensitivity_max_v_per_m, CHANNELS)
-    quad = rng.uniform(-1.0, 1.0, CHANNELS) * pr.quadratic_fraction_max * sens / span_m
-    cubic = rng.uniform(-1.0, 1.0, CHANNELS) * pr.cubic_fraction_max * sens / span_m**2
-    # one sign for all channels: every TCRT1000 has the same response curve, so its curvature has one sign
+    # one sign for every term and channel: a reflector's 1/d²-like response to its gap closing by x expands as
+    # 1 + 2x/d + 3(x/d)² + 4(x/d)³ + 5(x/d)⁴ ..., every coefficient of the linear one's sign
+    quad = rng.uniform(0.0, 1.0, CHANNELS) * pr.quadratic_fraction_max * sens / span_m
+    cubic = rng.uniform(0.0, 1.0, CHANNELS) * pr.cubic_fraction_max * sens / span_m**2
     quartic = rng.uniform(0.0, 1.0, CHANNELS) * pr.quartic_fraction_max * sens / span_m**3
     slip = rng.uniform(pr.slip_fraction_min, pr.slip_fraction_max, CHANNELS)
     v0 = pr.operating_point_v + rng.uniform(-1.0, 1.0, CHANNELS) * pr.operating_point_spread_v

@@ -40,6 +40,14 @@ def test_a_positive_twist_raises_one_channel_of_each_pair_and_lowers_the_other()
     assert np.all(change[0::2] > 0) and np.all(change[1::2] < 0)
 
 
+@pytest.mark.parametrize("unit_seed", [0, 1, 7])
+def test_every_curvature_term_has_the_linear_terms_sign_as_a_closing_gap_gives(unit_seed):
+    """1/(d - x)² = (1/d²)(1 + 2x/d + 3(x/d)² + 4(x/d)³ + ...): closing the gap raises every term."""
+    u = draw_unit(TestbedParams().replace(photoreflector={"unit_seed": unit_seed}))
+    for term in (u.quadratic_v_per_m2, u.cubic_v_per_m3, u.quartic_v_per_m4):
+        assert np.all(term * u.sensitivity_v_per_m > 0.0)
+
+
 def test_the_voltage_swing_at_25_nm_is_the_papers_and_visibly_nonlinear():
     """|ΔV| at ±25 N·m is about 0.6-1 V per channel (paper) and the two sides differ (x², x³ terms)."""
     v = PhotoReflectorArray(P).ideal_voltages(twist([-25.0, 0.0, 25.0]))

@@ -516,6 +516,9 @@ def main(argv: list[str] | None = None) -> None:
     overrides = best.record["overrides"]
     rep = report(space, base, best_x, best, settings, args.holdout, result.evaluations, result.generations)
     rep["base_kept"] = kept_base
+    if kept_base:  # the base's own values, not their round trip through the unit box
+        for p in rep["parameters"]:
+            p["value"] = p["default"]
     rep["seconds"] = time.perf_counter() - start
     rep["defaults_score"] = defaults.score
     rep["rotation"] = rotation([e.record for e in store.cached().values()], args.holdout)

@@ -26,7 +26,7 @@ def test_plant_card_prints_the_tables_and_writes_the_json(tmp_path):
     assert set(card["parameters"]["friction.breakaway_torque_nm"]) == bounded
     assert set(card["parameters"]["simulation.control_period_s"]) == bounded - {"bound", "bound_source"}
     assert card["parameters"]["friction.breakaway_torque_nm"]["bound"] == [0.117, 0.143]
-    assert "[0.02, 0.04] !" in result.stdout  # friction.load_friction_coefficient: 0.05, outside its bound
+    assert "[0.02, 0.04]" in result.stdout and "] !" not in result.stdout  # every default inside its bound
     printed = result.stdout.splitlines()
     assert max(len(line) for line in printed) <= 160  # sources wrap
     longest = max(card["parameters"].values(), key=lambda row: len(row["source"]))["source"]
@@ -93,3 +93,11 @@ def test_open_loop_step_refuses_a_step_of_zero_or_beyond_the_driver_limit(step):
     """A zero step, one the driver would clip (±26.3 N·m) or a non-number is a usage error with the valid range."""
     result = run("experiments.open_loop_step", "--steps", step)
     assert result.returncode == 2 and "valid steps are non-zero, within the driver's command limit" in result.stderr
+
+
+def test_the_plant_card_marks_a_value_outside_its_source_bound():
+    from experiments.plant import _bound_text
+
+    assert _bound_text({"value": 0.05, "bound": [0.02, 0.04]}) == "[0.02, 0.04] !"
+    assert _bound_text({"value": 0.03, "bound": [0.02, 0.04]}) == "[0.02, 0.04]"
+    assert _bound_text({"value": 0.03}) == ""

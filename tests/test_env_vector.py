@@ -194,7 +194,7 @@ def test_a_longer_command_history_leaves_a_run_unchanged_and_a_shorter_one_is_re
     p = TestbedParams()
     commands = np.random.default_rng(8).uniform(-6.0, 6.0, 1500)
     runs = []
-    for nsample in (None, 24):
+    for nsample in (None, 64):  # the delay needs 37 at the defaults
         plant = Plant(p, "locked", nsample=nsample)
         plant.reset(backlash_side=1)
         rows = np.empty((len(commands), 11))

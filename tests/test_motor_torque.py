@@ -19,12 +19,12 @@ def test_the_inverse_map_recovers_the_command(command_nm):
 
 
 def test_the_driver_limit_is_the_command_that_delivers_the_papers_peak_torque():
-    """Closed form: c/(1 + α c) = 18 N·m at c = 18/(1 - 18 α) = 26.3 N·m; the droop there is 32 %, 15 % at 10 N·m."""
+    """Closed form: c/(1 + α c) = 18 N·m at c = 18/(1 - 18 α) (30.9 N·m at the default α); 10/(1 + 10 α) at 10 N·m."""
     motor = CurrentToTorqueMap.from_params(TestbedParams())
     alpha, peak = MOTOR.torque_saturation_per_nm, MOTOR.peak_torque_nm
     assert motor.command_limit_nm == pytest.approx(peak / (1.0 - alpha * peak), rel=1e-12)
     assert motor.delivered_nm(-motor.command_limit_nm) == pytest.approx(-peak, rel=1e-12)
-    assert motor.delivered_nm(10.0) == pytest.approx(8.5, abs=0.01)  # 15 % droop at a 10 N·m command
+    assert motor.delivered_nm(10.0) == pytest.approx(10.0 / (1.0 + 10.0 * alpha), rel=1e-12)
 
 
 def test_a_torque_beyond_the_maps_asymptote_is_refused_with_the_asymptote():

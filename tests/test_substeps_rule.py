@@ -82,20 +82,20 @@ def test_any_other_rule_is_refused_naming_the_field_and_the_valid_values(tmp_pat
 
 
 def test_accurate_is_the_default_and_gives_the_rules_substeps_and_the_reference_models():
-    """The default rule is 'accurate': the step of both parts of the rule (16 per tick at the defaults), and the
+    """The default rule is 'accurate': the step of both parts of the rule (20 per tick at the defaults), and the
     models are the reference files, byte for byte, whether the rule is left out or named."""
     named = P.replace(simulation={"substeps_rule": "accurate"})
     assert P.simulation.substeps_rule == "accurate"
     for fixture in FIXTURES:
         n = expected_substeps(P, fixture, "accurate")
-        assert n == 16
+        assert n == 20
         assert physics_timestep(P, fixture) == physics_timestep(named, fixture) == (1e-3 / n, n)
         assert build_xml(P, fixture) == build_xml(named, fixture) == reference_xml_path(fixture).read_text()
 
 
 @pytest.mark.parametrize("fixture", FIXTURES)
 def test_fast_takes_8_substeps_at_the_defaults(fixture):
-    """At the defaults 'fast' runs 8 physics steps per 1 ms tick: the rule asks for 16, the stability part alone
+    """At the defaults 'fast' runs 8 physics steps per 1 ms tick: the rule asks for 20, the stability part alone
     for at most 8 (so h = 125 µs keeps ω_max·h <= 1)."""
     assert expected_substeps(P, fixture, "fast") == 8
     plant = Plant(FAST, fixture)
@@ -115,9 +115,9 @@ def test_fast_substeps_follow_the_stated_rule(simulation, friction, fixture):
 
 
 def test_fast_raises_the_solver_time_constants_to_two_of_its_steps_and_checks_the_parameters_as_accurate():
-    """The default time constants are two accurate steps (125 µs); under 'fast' the model uses two of its steps
-    (250 µs) and passes the check. A value set above that is kept; one below two accurate steps is refused
-    whatever the rule."""
+    """The default time constants (125 µs) are at least two accurate steps (2.5 of 50 µs); under 'fast' the model
+    uses two of its steps (250 µs) and passes the check. A value set above that is kept; one below two accurate
+    steps (100 µs) is refused whatever the rule."""
     for fixture in FIXTURES:
         check_time_constants(FAST, (fixture,))
         assert set(solver_time_constants(FAST, fixture).values()) == {2.5e-4}
@@ -128,8 +128,8 @@ def test_fast_raises_the_solver_time_constants_to_two_of_its_steps_and_checks_th
     slow_stop = FAST.replace(backlash={"stop_time_constant_s": 1e-3})
     assert solver_time_constants(slow_stop, "locked")["backlash", "stop_time_constant_s"] == 1e-3
     for rule in ("accurate", "fast"):
-        stiff = TestbedParams().replace(simulation={"substeps_rule": rule}, backlash={"stop_time_constant_s": 1e-4})
-        with pytest.raises(ParameterError, match=r"backlash.stop_time_constant_s = 0.0001 s .*\[0.000125, 1\] s"):
+        stiff = TestbedParams().replace(simulation={"substeps_rule": rule}, backlash={"stop_time_constant_s": 9e-5})
+        with pytest.raises(ParameterError, match=r"backlash.stop_time_constant_s = 9e-05 s .*\[0.0001, 1\] s"):
             build_xml(stiff, "locked")
 
 
@@ -200,10 +200,11 @@ def test_the_hub_stays_on_its_stop_through_the_admittance_pushes(params):
         assert loaded.sum() > 500 and np.sqrt(np.mean(backlash_rate_rad_s(log)[loaded] ** 2)) <= bound, push
 
 
-def test_fast_keeps_the_drivetrain_mode_within_2_5_percent_and_the_lever_ringings_damping_within_5_percent():
+def test_fast_keeps_the_drivetrain_mode_within_3_5_percent_and_the_lever_ringings_damping_within_5_percent():
     """Locked fixture, 1 N·m preload, linearised: the control-relevant drivetrain mode under 'fast' lies within
-    2.5 % of its frequency under 'accurate' (the explicit bristle update's first-order error: h/(σ1/σ0) grows
-    from 1.7 % to 3.5 %); the lever's ringing on the load cell keeps its damping ratio within 5 %."""
+    3.5 % of its frequency under 'accurate' (+2.8 % at the defaults: the explicit bristle update's first-order
+    error h/(σ1/σ0) is 1.8 % at 20 substeps and 4.4 % at 8); the lever's ringing on the load cell keeps its damping
+    ratio within 5 % (+2.4 %)."""
     accurate, fast = (linearized_modes(linearizable_plant(p, "locked", 1.0))[:2] for p in (P, FAST))
-    assert fast[0].natural_frequency_hz == pytest.approx(accurate[0].natural_frequency_hz, rel=0.025)
+    assert fast[0].natural_frequency_hz == pytest.approx(accurate[0].natural_frequency_hz, rel=0.035)
     assert fast[1].damping_ratio == pytest.approx(accurate[1].damping_ratio, rel=0.05)

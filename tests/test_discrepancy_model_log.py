@@ -43,7 +43,7 @@ REPLAY_START = ("at the identified defaults a replay window's first ticks differ
                 "encoder counts, 1.9e-6 rad; first-ms error 0.144 against 0.075 N·m); cause not found: not the "
                 "command delay, presliding stiffness, load friction, backlash or viscous friction alone; with the "
                 "Coulomb, Stribeck, viscous, droop, current-loop and amplifier values of the search's start, the "
-                "locked replay passes")
+                "one of these two checks passes")
 
 
 @pytest.mark.xfail(strict=True, reason=REPLAY_START)

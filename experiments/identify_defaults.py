@@ -70,7 +70,16 @@ from experiments.common import (
     write_json,
 )
 from experiments.paper import ACTUATION_LEVEL, ONE_SIDED_SHARE, PAPER_BREAKAWAY_NM
-from experiments.search import Dimension, Evaluation, SearchResult, SearchStore, Space, log_scaled, minimise
+from experiments.search import (
+    DEFAULT_SIGMA0,
+    Dimension,
+    Evaluation,
+    SearchResult,
+    SearchStore,
+    Space,
+    log_scaled,
+    minimise,
+)
 from experiments.sinusoid import SinusoidResult, run_sinusoid, run_sinusoid_case
 from experiments.step import (
     PAPER_DISTURBANCE_LOST_NM,
@@ -452,7 +461,7 @@ def main(argv: list[str] | None = None) -> None:
                         help="noise seeds each candidate runs with (default 0,1)")
     parser.add_argument("--search-seed", type=search_seed_arg, default=1, metavar="N",
                         help="seed of the CMA-ES sampling (default 1)")
-    parser.add_argument("--sigma0", type=float, default=0.25, metavar="F",
+    parser.add_argument("--sigma0", type=float, default=DEFAULT_SIGMA0, metavar="F",
                         help="initial step of the search as a fraction of each bound's width, in (0, 1] (default "
                              "0.25; smaller to refine around the parameters of --params)")
     parser.add_argument("--workers", type=positive_int, default=1, metavar="N", help="local processes (default 1)")
@@ -479,10 +488,11 @@ def main(argv: list[str] | None = None) -> None:
         parser.error(f"--sigma0 {args.sigma0}: valid range (0, 1] (a fraction of each bound's width)")
     space = default_space(base)
     settings = {"space": [[d.path, d.lo, d.hi] for d in space.dims], "seeds": list(args.seeds),
-                "search_seed": args.search_seed, "sigma0": args.sigma0,
-                "substeps_rule": base.simulation.substeps_rule,
+                "search_seed": args.search_seed, "substeps_rule": base.simulation.substeps_rule,
                 "duration_s": args.duration, "holdout": args.holdout,
                 "params": str(args.params) if args.params else None}
+    if args.sigma0 != DEFAULT_SIGMA0:  # recorded only when set, so directories without the option still resume
+        settings["sigma0"] = args.sigma0
     try:
         store = SearchStore(args.out, settings, resume=args.resume)
     except ValueError as exc:

@@ -24,6 +24,7 @@ import numpy as np
 IDENTIFY_EXTRA = 'pip install -e ".[identify]"'
 LOG_RATIO = 3.0  # [-] a dimension whose hi/lo exceeds this is searched in log scale
 EDGE = 0.01  # [-] a value within this fraction of its bound's span (in x) sits on that edge
+DEFAULT_SIGMA0 = 0.25  # [-] CMA-ES's initial step, a fraction of the unit box's width
 
 
 def log_scaled(lo: float, hi: float) -> bool:
@@ -207,7 +208,7 @@ def default_popsize(n: int) -> int:
 
 
 def minimise(evaluate: Callable[[list[np.ndarray]], list[Evaluation]], x0: Sequence[float], *, seed: int,
-             budget: int, sigma0: float = 0.25, popsize: int | None = None, store: SearchStore | None = None,
+             budget: int, sigma0: float = DEFAULT_SIGMA0, popsize: int | None = None, store: SearchStore | None = None,
              progress: Callable[[int, int, float], None] | None = None) -> SearchResult:
     """CMA-ES over [0, 1]^n from ``x0``, until ``budget`` candidates are scored or the strategy stops.
 

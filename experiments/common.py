@@ -7,6 +7,7 @@ import json
 import math
 import os
 import tempfile
+from collections.abc import Callable
 from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
@@ -17,6 +18,7 @@ from models.gim8108_testbed.build import build_xml, check_time_constants
 from models.gim8108_testbed.derived import FIXTURES
 from sensor.calibration import InfeasibleCalibrationError
 from sensor.protocol import check_params as check_sensor_params
+from sim.executor import Executor
 from sim.params import ParameterError, TestbedParams, load_params
 
 
@@ -24,6 +26,22 @@ def cli_parser(doc: str, module: str) -> argparse.ArgumentParser:
     """The parser of ``python -m module``: usage under that name, the module docstring's first paragraph as its
     description (whole sentences, not its first line)."""
     return argparse.ArgumentParser(prog=f"python -m {module}", description=" ".join(doc.split("\n\n")[0].split()))
+
+
+def add_executor_args(parser: argparse.ArgumentParser, what: str) -> None:
+    """``--workers N`` (local processes) and ``--ray [ADDRESS]`` (a Ray cluster) for the items of ``what``."""
+    parser.add_argument("--workers", type=positive_int, default=1, metavar="N", help="local processes (default 1)")
+    parser.add_argument("--ray", nargs="?", const="local", default=None, metavar="ADDRESS",
+                        help=f"run {what} on a Ray cluster (no address: start one on this machine)")
+
+
+def executor_from_args(parser: argparse.ArgumentParser, args: argparse.Namespace,
+                       progress: Callable[[int, int], None] | None = None) -> Executor:
+    """The executor of :func:`add_executor_args`' flags; a Ray that is not installed is a usage error."""
+    try:
+        return Executor(args.workers, ray=args.ray, progress=progress)
+    except RuntimeError as exc:
+        parser.error(f"--ray: {exc}")
 
 
 def add_params_arg(parser: argparse.ArgumentParser) -> None:

@@ -56,10 +56,12 @@ import numpy as np
 
 from controllers.feedback import FEEDBACK_KINDS
 from experiments.common import (
+    add_executor_args,
     add_no_figures_arg,
     add_params_arg,
     add_rerun_args,
     cli_parser,
+    executor_from_args,
     is_primary,
     load_params_arg,
     positive_int,
@@ -336,14 +338,16 @@ def params_toml(overrides: dict[str, dict[str, float]], header: str = "") -> str
 
 def report(space: Space, base: TestbedParams, best_x: np.ndarray, best: Evaluation, settings: dict[str, Any],
            holdout: str | None, evaluations: int, generations: int) -> dict[str, Any]:
-    """The report's content (JSON-ready): score, parameters with bounds and edges, figures, groups."""
-    defaults = {row[0]: row[1] for row in base.rows()}
-    units = {row[0]: row[2] for row in base.rows()}
-    parameters = [{"path": d.path, "value": d.value(x), "default": defaults[d.path], "unit": units[d.path],
-                   "bound": [d.lo, d.hi], "log_scale": d.log, "x": float(x), "edge": d.edge(x)}
-                  for d, x in zip(space.dims, best_x, strict=True)]
+    """The report's content (JSON-ready): score, parameters with bounds and edges, figures, groups. Each value is
+    the one evaluated (the base's under the candidate's overrides)."""
     if "seeds" not in best.record:
         raise RuntimeError(f"no candidate the parameters accept was found: {best.record['errors']}")
+    defaults = {row[0]: row[1] for row in base.rows()}
+    units = {row[0]: row[2] for row in base.rows()}
+    evaluated = {row[0]: row[1] for row in base.replace(**best.record["overrides"]).rows()}
+    parameters = [{"path": d.path, "value": evaluated[d.path], "default": defaults[d.path], "unit": units[d.path],
+                   "bound": [d.lo, d.hi], "log_scale": d.log, "x": float(x), "edge": d.edge(x)}
+                  for d, x in zip(space.dims, best_x, strict=True)]
     seeds = best.record["seeds"]
     first = next(iter(seeds.values()))["rows"]
     figures = []
@@ -464,9 +468,7 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--sigma0", type=float, default=DEFAULT_SIGMA0, metavar="F",
                         help="initial step of the search as a fraction of each bound's width, in (0, 1] (default "
                              "0.25; smaller to refine around the parameters of --params)")
-    parser.add_argument("--workers", type=positive_int, default=1, metavar="N", help="local processes (default 1)")
-    parser.add_argument("--ray", nargs="?", const="local", default=None, metavar="ADDRESS",
-                        help="run the evaluations on a Ray cluster (no address: start one on this machine)")
+    add_executor_args(parser, "the evaluations")
     parser.add_argument("--fast", action="store_true",
                         help='simulation.substeps_rule = "fast" (exploration: ~2x faster; RMS figures within 1 %%, '
                              'peak errors within 9 %%)')
@@ -497,7 +499,7 @@ def main(argv: list[str] | None = None) -> None:
         store = SearchStore(args.out, settings, resume=args.resume)
     except ValueError as exc:
         parser.error(f"--out {args.out}: {exc}")
-    executor = Executor(args.workers, ray=args.ray)
+    executor = executor_from_args(parser, args)
     objective = Objective(space, Setup(base, args.duration), args.seeds, executor, args.holdout)
     start = time.perf_counter()
     print(f"identifying {len(space)} parameters, {len(args.seeds)} seed(s), {len(cases()) * len(args.seeds) + 1} "
@@ -526,9 +528,6 @@ def main(argv: list[str] | None = None) -> None:
     overrides = best.record["overrides"]
     rep = report(space, base, best_x, best, settings, args.holdout, result.evaluations, result.generations)
     rep["base_kept"] = kept_base
-    if kept_base:  # the base's own values, not their round trip through the unit box
-        for p in rep["parameters"]:
-            p["value"] = p["default"]
     rep["seconds"] = time.perf_counter() - start
     rep["defaults_score"] = defaults.score
     rep["rotation"] = rotation([e.record for e in store.cached().values()], args.holdout)

@@ -30,9 +30,11 @@ import numpy as np
 from experiments.calibration import run_calibration
 from experiments.common import (
     TARGET_RATIO,
+    add_executor_args,
     add_output_args,
     add_params_arg,
     cli_parser,
+    executor_from_args,
     is_primary,
     load_params_arg,
     positive_int,
@@ -273,9 +275,7 @@ def main(argv: list[str] | None = None) -> int:
                         help=f"sensor units to run, unit_seed 0 .. N-1 (default {DEFAULT_UNITS})")
     parser.add_argument("--seed", type=seed_arg, default=0, help="seed of every noise draw, for every unit "
                                                                  "(default 0)")
-    parser.add_argument("--workers", type=positive_int, default=1, metavar="N", help="local processes (default 1)")
-    parser.add_argument("--ray", nargs="?", const="local", default=None, metavar="ADDRESS",
-                        help="run the units on a Ray cluster (no address: start one on this machine)")
+    add_executor_args(parser, "the units")
     add_output_args(parser, "write the spreads, every unit's values, the failures and rejected drift fits")
     add_params_arg(parser)
     args = parser.parse_args(argv)
@@ -283,10 +283,7 @@ def main(argv: list[str] | None = None) -> int:
     if args.units > _max_units(params):
         parser.error(f"--units {args.units}: valid range [1, {_max_units(params)}] (unit_seed is at most "
                      f"{_max_units(params) - 1})")
-    try:
-        executor = Executor(args.workers, ray=args.ray, progress=stderr_progress("units"))
-    except RuntimeError as exc:  # Ray asked for but not installed
-        parser.error(f"--ray: {exc}")
+    executor = executor_from_args(parser, args, progress=stderr_progress("units"))
     print(f"calibration and thermal experiments on {args.units} sensor units, on {executor.where} ...",
           file=sys.stderr, flush=True)
     start = time.perf_counter()

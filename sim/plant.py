@@ -280,8 +280,8 @@ class Plant:
         if _MUJOCO_WARNINGS:
             warn_mujoco_warnings()
         # Copper loss: the winding carries the driver's current (not just its torque-producing part), taken as
-        # the limited command, tau_nm / (N·K_t): it lags by the 0.5 ms delay and the 0.16 ms current loop,
-        # nothing against the 0.1 s thermal update (and the inverse map per tick cost ~2 % of a tick).
+        # the limited command, tau_nm / (N·K_t): it lags by the command delay and the current loop (each a few ms at
+        # most), nothing against the 0.1 s thermal update (and the inverse map per tick cost ~2 % of a tick).
         self._command_sq_sum += tau_nm * tau_nm
         self._ticks += 1
         if self._ticks % self._thermal_ticks == 0:

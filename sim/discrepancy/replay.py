@@ -62,21 +62,28 @@ def _windows(data: Prepared, config: AnalysisConfig) -> list[tuple[int, int]]:
     return out
 
 
-def _motor_angle(log: RunLog, data: Prepared) -> np.ndarray:
-    """The filtered motor-side angle at full rate [rad]: the motor encoder, else the only encoder the log has."""
-    return data.filt_full(np.asarray(log["q_motor"] if "q_motor" in log.columns else log["q"], dtype=float))
+def _motor_angle(log: RunLog, data: Prepared, filtered: bool = True) -> np.ndarray:
+    """The motor-side angle at full rate [rad], filtered unless asked raw: the motor encoder, else the only
+    encoder the log has."""
+    q = np.asarray(log["q_motor"] if "q_motor" in log.columns else log["q"], dtype=float)
+    return data.filt_full(q) if filtered else q
 
 
-def _lever_angle(log: RunLog, data: Prepared) -> np.ndarray:
-    """The lever angle at full rate [rad]: the filtered lever encoder, else the motor-side angle (rigid gear)."""
-    return data.filt_full(np.asarray(log["q"], dtype=float)) if "q" in log.columns else _motor_angle(log, data)
+def _lever_angle(log: RunLog, data: Prepared, filtered: bool = True) -> np.ndarray:
+    """The lever angle at full rate [rad], filtered unless asked raw: the lever encoder, else the motor-side
+    angle (rigid gear)."""
+    if "q" not in log.columns:
+        return _motor_angle(log, data, filtered)
+    q = np.asarray(log["q"], dtype=float)
+    return data.filt_full(q) if filtered else q
 
 
 def measured_state(log: RunLog, rig: Rig, data: Prepared, *, at_rest: bool = False,
                    contact_torque: float = AnalysisConfig.contact_torque) -> Callable[[int], InitialState]:
     """k -> a function that puts the plant of ``rig`` into the log's measured state at sample k (the module
-    docstring says how). Rigid joint: position and velocity. ``at_rest``: velocities zero (at the ends of a log
-    the zero-phase filter's velocity is not reliable); ``contact_torque`` [N·m]: above it the hub is loaded.
+    docstring says how). Rigid joint: position and velocity. ``at_rest``: velocities zero and the encoders' raw
+    angles (a start at the log's first sample, where the zero-phase filter's edge biases both by the motion that
+    follows); ``contact_torque`` [N·m]: above it the hub is loaded.
     The driver's state is set by the run (``previous_commands`` of :func:`sim.discrepancy.simulate.run_testbed`).
     """
     if rig.model != "testbed":
@@ -100,7 +107,7 @@ def measured_state(log: RunLog, rig: Rig, data: Prepared, *, at_rest: bool = Fal
     k_t = derived.flexure_stiffness_nm_per_rad
     half_gap = 0.5 * rig.params.backlash.width_rad
     bristle = measured_bristle_rad(rig, data) * rig.params.motor.gear_ratio  # motor side: MuJoCo's dcmotor state
-    q_motor, q_lever = _motor_angle(log, data), _lever_angle(log, data)
+    q_motor, q_lever = _motor_angle(log, data, not at_rest), _lever_angle(log, data, not at_rest)
     velocity = data.gradient(q_motor)
     if "force_loadcell" in log.columns:
         tau = data.filt_full(np.asarray(log["force_loadcell"], dtype=float) * rig.params.lever.length_m)

@@ -290,9 +290,10 @@ def test_discrepancy_records_the_replay_of_the_held_out_part(tmp_path, measured_
     discrepancy.main([str(log_path), "--rig", str(rig_path), "--workers", "1", "--json", str(out),
                       "--plot", str(tmp_path), "--rerun", str(path)])
     baseline = json.loads(out.read_text())["baseline"]
-    samples = baseline["replay"]["samples"]
+    samples = baseline["replay"]["samples"] + baseline["replay"]["skipped_samples"]  # and those quiet starts skip
     split = baseline["split"]
     assert abs(samples - split["held_out_samples"] * split["grid_step"]) <= split["grid_step"]  # the held-out part
+    samples = baseline["replay"]["samples"]
     rows, _ = read_back(path)
     assert [rows[f"/measured_bench/replay/{s}"] for s in ("measured", "baseline", "extended")] == [samples] * 3
     assert series_labels(path, "/measured_bench/replay/") == {"measured [N·m]", "baseline [N·m]", "extended [N·m]"}

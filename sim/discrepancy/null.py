@@ -18,37 +18,21 @@ away from it, which leaves it a log of the model under that command, all the ref
 
 from __future__ import annotations
 
-import math
-
 import numpy as np
 
 from sim.discrepancy.replay import measured_state
 from sim.discrepancy.rig import Rig
-from sim.discrepancy.signals import Prepared, quantise, smallest_step
+from sim.discrepancy.signals import Prepared, quantise, smallest_step, white_noise_std
 from sim.discrepancy.simulate import run_rigid, run_testbed, sensor_reading
 from sim.plant import SimulationDiverged
 from sim.runlog import RunLog
 
 NOISE_COLUMNS = ("tau_sensor", "force_loadcell")  # measured with white noise, whose level is estimated
 POSITION_COLUMNS = ("q", "q_motor")  # quantised at the log's own step
-SECOND_DIFFERENCE_GAIN = math.sqrt(6.0)  # std of x[k+1] - 2 x[k] + x[k-1] for white x of unit std
-MAD_TO_STD = 1.4826  # median absolute deviation -> standard deviation of a normal distribution
 
 
 class ModelLogUnavailable(RuntimeError):
     """The current model cannot produce a log of this command (the reason is the message)."""
-
-
-def white_noise_std(x: np.ndarray) -> float:
-    """Standard deviation of the white noise on a smooth signal sampled well above its bandwidth [x's unit].
-
-    From the median absolute second difference (robust to the few large steps of impacts and transitions);
-    the smooth part's second difference is negligible at 1 kHz for signals below ~20 Hz.
-    """
-    d2 = np.diff(np.asarray(x, dtype=float), 2)
-    if len(d2) == 0:
-        return 0.0
-    return float(MAD_TO_STD * np.median(np.abs(d2 - np.median(d2))) / SECOND_DIFFERENCE_GAIN)
 
 
 def model_log(log: RunLog, rig: Rig, data: Prepared, seed: int = 0) -> RunLog:

@@ -108,6 +108,8 @@ def format_result(result: DiscrepancyResult) -> str:
         lines.append(f"MuJoCo replay of the held-out part ({r['windows']} windows of {r['window_s']} s, re-initialised "
                      f"from the measured state), {r['signal']}: RMSE baseline {r['rmse_baseline']:.4g} {r['unit']}, "
                      f"extended {r['rmse_extended']:.4g} {r['unit']}")
+        if r.get("skipped_samples"):
+            lines.append(f"  {r['skipped_samples']} samples not replayed: window starts moved past slips of the gear")
     lines.append(f"Verdict: {result.verdict}")
     return "\n".join(lines)
 

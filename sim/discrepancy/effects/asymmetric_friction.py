@@ -1,8 +1,10 @@
 """Asymmetric friction: the friction levels differ by direction of motion (F_c+ - F_c- = Δ).
 
 Levels ``F_c ± Δ/2`` by direction are exactly a constant effort ``Δ/2`` opposing positive motion added to a
-symmetric level: the term is that constant. On a slide it is the same term as gravity along the incline and is
-reported as gravity.
+symmetric level: the term is that constant. A constant offset of the delivered effort while sliding (a driver's
+current-sense offset: its current loop drives the measured current to the command, so the motor delivers the
+command less the offset b) is the same term, Δ = 2·b, and is reported here. On a slide it is the same
+term as gravity along the incline and is reported as gravity.
 """
 
 from __future__ import annotations
@@ -19,7 +21,8 @@ RIGID_RANGE_OF_COULOMB = (0.2, 0.4)  # a rigid hinge: x its Coulomb level
 class AsymmetricFriction(Effect):
     name = "asymmetric_friction"
     revealing_experiment = "free"
-    description = "friction levels that differ with the direction of motion"
+    description = ("friction levels that differ with the direction of motion, or a constant effort offset "
+                   "(e.g. the driver's current-sense offset)")
     params = (Param("asymmetry", "N·m", "N", "F_c+ - F_c-: positive-direction minus negative-direction level"),)
     rigs = frozenset({TESTBED, HINGE})
     signature = "constant while sliding"

@@ -1,24 +1,34 @@
-"""Joint identification of the uncertain defaults against the paper's Tables VI-VII (CMA-ES, resumable).
+"""Joint identification of the uncertain defaults against the paper's tables (CMA-ES, resumable).
 
-    python -m experiments.identify_defaults [--out DIR] [--resume] [--budget N] [--seeds 0,1] [--workers N]
-                                            [--ray [ADDRESS]] [--fast] [--duration S] [--holdout GROUP]
-                                            [--params TOML] [--rerun PATH.rrd] [--no-plot]
+    python -m experiments.identify_defaults [--part {drivetrain,sensor,joint}] [--out DIR] [--resume]
+                                            [--budget N] [--seeds 0,1] [--workers N] [--ray [ADDRESS]] [--fast]
+                                            [--duration S] [--holdout GROUP] [--params TOML] [--rerun PATH.rrd]
+                                            [--no-plot]
 
 What it fits, to what
 ---------------------
-The parameters of :data:`SEARCHED` (gear friction, backlash, torque droop, command delay, current loop, load-cell
-amplifier), each searched in [0, 1] mapped onto its source bound (``sim.params.source_bound``; log scale where
-hi/lo > 3).
-The paper fixes the breakaway (0.13 N·m); the load-cell reading noise stays the closed form of its source.
-A candidate runs every step, disturbance, sine and square test under both feedbacks (the cases of
-``experiments.step`` and ``experiments.sinusoid``, their rows built by those modules) and the breakaway ramp
-(``sim.characterize``), once per seed. Its score is the mean over the seeds of
+``--part`` chooses the parameters (:data:`PARTS`), each searched in [0, 1] mapped onto its source bound
+(``sim.params.source_bound``; log scale where hi/lo > 3), and the experiments that score them:
 
-* the RMS over the primary Table VI-VII rows of ln(sim / paper) (a factor 1.5 is 0.405), plus
-* hinge penalties, 0 inside a band and (ln(value / nearest band end))² outside it, on the behaviours the paper
-  describes (:data:`BANDS`): current feedback reaching 30 / 40 / 65 % (± 0.1) of the steps, increasing with the
-  step; losing regulation at ≈ 0.3 N·m of disturbance; sensor feedback holding past 2 N·m; one-sided
-  actuation of the low-torque current-feedback waveforms (``experiments.paper``); the breakaway 0.13 ± 10 %.
+* ``drivetrain`` (the default): gear friction, backlash, torque droop, command delay, current loop, load-cell
+  amplifier (:data:`DRIVETRAIN`) against Tables VI-VII: every step, disturbance, sine and square test under both
+  feedbacks (the cases of ``experiments.step`` and ``experiments.sinusoid``, their rows built by those modules)
+  and the breakaway ramp (``sim.characterize``). The paper fixes the breakaway (0.13 N·m); the load-cell reading
+  noise stays the closed form of its source.
+* ``sensor``: the photo-reflector array's curvature, noise, slip, tilt-response spread and temperature
+  coefficients (:data:`SENSOR`) against Tables III-V and Sec. III-C: the calibration and thermal experiments
+  (``experiments.calibration``, ``experiments.thermal``). The cubic and quartic curvature follow the quadratic
+  one on the 1/d² reflector's family (:func:`tied_overrides`).
+* ``joint``: both sets against every table at once.
+
+A candidate runs its part's experiments once per seed. Its score is the mean over the seeds of
+
+* the RMS over the primary rows of the fitted tables of ln(sim / paper) (a factor 1.5 is 0.405), plus
+* (drivetrain and joint) hinge penalties, 0 inside a band and (ln(value / nearest band end))² outside it, on the
+  behaviours the paper describes (:data:`BANDS`): current feedback reaching 30 / 40 / 65 % (± 0.1) of the steps,
+  increasing with the step; losing regulation at ≈ 0.3 N·m of disturbance; sensor feedback holding past 2 N·m;
+  one-sided actuation of the low-torque current-feedback waveforms (``experiments.paper``); the breakaway
+  0.13 ± 10 %.
 
 The solver time constants (numerical) follow their source's rule, two physics steps, where a candidate lengthens
 the step. A candidate the parameters refuse (a constraint between fields) scores :data:`INFEASIBLE_SCORE`. CMA-ES
@@ -34,7 +44,7 @@ figure paper beside simulation, the score of each figure group, and each group h
 refit: the evaluated candidate best without it, scored on it). ``--resume`` continues the run in DIR and reuses
 its evaluations. ``--holdout GROUP`` leaves one figure group (:data:`GROUPS`) and its behaviours out of the score
 and reports the best candidate's score on it. ``--fast`` runs the physics under ``simulation.substeps_rule =
-"fast"`` and ``--duration`` shortens every test: both for exploration, not for the reported figures. --rerun
+"fast"`` and ``--duration`` shortens every motor test: both for exploration, not for the reported figures. --rerun
 records the best candidate's step and sinusoid runs (first seed), run once more after the search (not re-run
 during it). The command draws no figures (--no-plot is accepted, as by every experiment).
 """
@@ -55,6 +65,7 @@ from typing import Any
 import numpy as np
 
 from controllers.feedback import FEEDBACK_KINDS
+from experiments.calibration import run_calibration
 from experiments.common import (
     add_executor_args,
     add_no_figures_arg,
@@ -91,6 +102,7 @@ from experiments.step import (
     run_step,
     run_step_case,
 )
+from experiments.thermal import run_thermal
 from models.gim8108_testbed.derived import FIXTURES, SOLVER_TIME_CONSTANTS, physics_timestep
 from sim.characterize import measure_breakaway
 from sim.executor import Executor
@@ -98,19 +110,30 @@ from sim.params import ParameterError, TestbedParams, field_range, source_bound
 from sim.protocols import STEPS_NM, WAVEFORMS
 from sim.runlog import RunLog
 
-# The searched parameters, each on its source bound (sim.params.source_bound).
-SEARCHED = ("friction.coulomb_torque_nm", "friction.load_friction_coefficient", "friction.stribeck_velocity_rad_s",
-            "friction.viscous_nms_per_rad", "friction.presliding_stiffness_nm_per_rad",
-            "motor.torque_saturation_per_nm", "backlash.width_rad", "motor.command_delay_s",
-            "motor.current_loop_time_constant_s", "loadcell.amplifier_bandwidth_hz")
-FIT_TABLES = ("VI", "VII")
+# The searched parameters of each part, each on its source bound (sim.params.source_bound).
+DRIVETRAIN = ("friction.coulomb_torque_nm", "friction.load_friction_coefficient", "friction.stribeck_velocity_rad_s",
+              "friction.viscous_nms_per_rad", "friction.presliding_stiffness_nm_per_rad",
+              "motor.torque_saturation_per_nm", "backlash.width_rad", "motor.command_delay_s",
+              "motor.current_loop_time_constant_s", "loadcell.amplifier_bandwidth_hz")
+SENSOR = ("photoreflector.quadratic_fraction_max", "photoreflector.noise_min_v", "photoreflector.noise_max_v",
+          "photoreflector.slip_fraction_min", "photoreflector.slip_fraction_max", "photoreflector.crosstalk_spread",
+          "photoreflector.optical_tempco_per_k", "photoreflector.optical_tempco_spread_per_k")
+PARTS = {"drivetrain": DRIVETRAIN, "sensor": SENSOR, "joint": DRIVETRAIN + SENSOR}
+DEFAULT_PART = "drivetrain"
+FIT_TABLES = ("VI", "VII", "III", "IV", "III-B resolution", "V", "III-C")
+# A 1/d² reflector response over a gap change ±Δ about d: its quadratic, cubic and quartic terms are 1.5·(Δ/d),
+# 2·(Δ/d)² and 2.5·(Δ/d)³ of the linear one (models/gim8108_testbed/README.md, Derivations).
+CURVATURE_FAMILY = {"quadratic_fraction_max": (1.5, 1), "cubic_fraction_max": (2.0, 2),
+                    "quartic_fraction_max": (2.5, 3)}
 # [-] a candidate the parameters refuse: above any simulated score (each penalty is at most ~(ln 2e3)² = 58)
 INFEASIBLE_SCORE = 1e4
 RATIO_FLOOR = 1e-2  # [-] a figure the simulation does not produce (None, <= 0) counts as this ratio
 # Figure groups (one test each, both feedbacks): --holdout leaves one out of the score.
 GROUPS = {"steps": "the 0.05, 0.1 and 0.2 N·m steps (Table VI) and the reached fractions",
           "disturbance": "the disturbance test (Table VI) and where regulation is lost or held",
-          **{w.name.replace(" ", "_").replace("·", ""): f"the {w.name} test (Table VII)" for w in WAVEFORMS}}
+          **{w.name.replace(" ", "_").replace("·", ""): f"the {w.name} test (Table VII)" for w in WAVEFORMS},
+          "calibration": "the calibration experiment (Tables III-IV, the resolution comparison)",
+          "thermal": "the temperature experiment (Table V, Sec. III-C)"}
 # Behaviour bands (paper Sec. IV, the motor experiments): value -> [lo, hi].
 BANDS = {**{f"reached fraction {s:g} N·m": (f - 0.1, f + 0.1) for s, f in PAPER_REACHED_FRACTION.items()},
          "current-feedback regulation lost at [N·m]": (0.2, 0.45),
@@ -120,22 +143,36 @@ BANDS = {**{f"reached fraction {s:g} N·m": (f - 0.1, f + 0.1) for s, f in PAPER
          "breakaway [N·m]": (0.9 * PAPER_BREAKAWAY_NM, 1.1 * PAPER_BREAKAWAY_NM)}
 
 
-def default_space(params: TestbedParams | None = None) -> Space:
-    """The searched parameters on their source bounds, each cut to the field's valid range (an open end of it,
-    such as a backlash width > 0, nudges the bound inside); the scale follows the source bound."""
+def default_space(params: TestbedParams | None = None, part: str = DEFAULT_PART) -> Space:
+    """The searched parameters of ``part`` on their source bounds, each cut to the field's valid range (an open end
+    of it, such as a backlash width > 0, nudges the bound inside); the scale follows the source bound."""
     params = params or TestbedParams()
     dims = []
-    for path in SEARCHED:
+    for path in PARTS[part]:
         lo, hi = source_bound(path)
         valid_lo, valid_hi = field_range(params, *path.split("."))
         dims.append(Dimension(path, max(lo, valid_lo), min(hi, valid_hi), log=log_scaled(lo, hi)))
     return Space(tuple(dims))
 
 
+def tied_overrides(overrides: dict[str, dict[str, float]]) -> dict[str, dict[str, float]]:
+    """``overrides`` with the cubic and quartic curvature on the quadratic's 1/d² family (:data:`CURVATURE_FAMILY`)
+    when the quadratic is among them: one gap ratio Δ/d = quadratic / 1.5 sets all three."""
+    quadratic = overrides.get("photoreflector", {}).get("quadratic_fraction_max")
+    if quadratic is None:
+        return overrides
+    k, n = CURVATURE_FAMILY["quadratic_fraction_max"]
+    ratio = (quadratic / k) ** (1.0 / n)
+    tied = {name: k_i * ratio**n_i for name, (k_i, n_i) in CURVATURE_FAMILY.items()}
+    return {**overrides, "photoreflector": {**overrides["photoreflector"], **tied}}
+
+
 def candidate_overrides(base: TestbedParams, overrides: dict[str, dict[str, float]]) -> dict[str, dict[str, float]]:
-    """``overrides`` and the solver time constants a candidate needs: their source's rule, two physics steps of
-    the accurate rule (``models.gim8108_testbed.build.check_time_constants``), where the candidate lengthens the
-    step (a softer presliding stiffness does). They are numerical, not identified."""
+    """``overrides`` with the curvature terms tied (:func:`tied_overrides`) and the solver time constants a
+    candidate needs: their source's rule, two physics steps of the accurate rule
+    (``models.gim8108_testbed.build.check_time_constants``), where the candidate lengthens the step (a softer
+    presliding stiffness does). They are numerical, not identified."""
+    overrides = tied_overrides(overrides)
     try:
         params = base.replace(**overrides)
     except ParameterError:  # a rule between fields refuses the candidate: run_case scores it infeasible
@@ -160,13 +197,17 @@ class Setup:
     duration_s: float | None = None
 
 
-def cases() -> list[tuple[str, str, Any]]:
-    """(kind, feedback, argument) of every case of one candidate and seed: steps, disturbance, waveforms."""
+def cases(part: str = DEFAULT_PART) -> list[tuple[str, str, Any]]:
+    """(kind, feedback, argument) of every case of one candidate and seed: steps, disturbance, waveforms
+    (drivetrain); the calibration and thermal experiments (sensor); all of them (joint)."""
     out: list[tuple[str, str, Any]] = []
-    for feedback in FEEDBACK_KINDS:
-        out += [("step", feedback, s) for s in STEPS_NM]
-        out.append(("disturbance", feedback, None))
-        out += [("waveform", feedback, i) for i in range(len(WAVEFORMS))]
+    if part != "sensor":
+        for feedback in FEEDBACK_KINDS:
+            out += [("step", feedback, s) for s in STEPS_NM]
+            out.append(("disturbance", feedback, None))
+            out += [("waveform", feedback, i) for i in range(len(WAVEFORMS))]
+    if part != "drivetrain":
+        out += [("calibration", "", None), ("thermal", "", None)]
     return out
 
 
@@ -178,6 +219,10 @@ def run_case(setup: Setup, item: tuple[dict, int, tuple[str, str, Any]]) -> dict
         params = setup.params.replace(**overrides)
         if kind == "breakaway":
             return {"kind": kind, "rows": [], "breakaway_nm": measure_breakaway(params).torque_nm}
+        if kind in ("calibration", "thermal"):
+            experiment = (run_calibration if kind == "calibration" else run_thermal)(params, seed)
+            return {"kind": kind, "feedback": "", "group": kind,
+                    "rows": [{**row, "group": kind} for row in experiment.rows()]}
         if kind == "step":
             hold = {} if setup.duration_s is None else {"hold_s": setup.duration_s}
             case = run_step_case(params, feedback, arg, seed, **hold)
@@ -202,7 +247,7 @@ def run_case(setup: Setup, item: tuple[dict, int, tuple[str, str, Any]]) -> dict
 
 
 def primary(row: dict[str, Any]) -> bool:
-    """A fitted row: a Table VI-VII figure read as the paper's primary definition."""
+    """A fitted row: a figure of a fitted table (:data:`FIT_TABLES`) read as the paper's primary definition."""
     return row["table"] in FIT_TABLES and is_primary(row)
 
 
@@ -228,8 +273,9 @@ def penalties(results: list[dict[str, Any]]) -> dict[str, tuple[str, float]]:
     for step, f in fractions:
         out[f"reached fraction {step:g} N·m"] = ("steps", hinge(f, BANDS[f"reached fraction {step:g} N·m"]))
     ordered = [f for _, f in sorted(fractions)]
-    out["reached fraction increases with the step"] = ("steps", sum(
-        math.log(max(a, 1e-3) / max(b, 1e-3)) ** 2 for a, b in zip(ordered, ordered[1:], strict=False) if b < a))
+    if ordered:
+        out["reached fraction increases with the step"] = ("steps", sum(
+            math.log(max(a, 1e-3) / max(b, 1e-3)) ** 2 for a, b in zip(ordered, ordered[1:], strict=False) if b < a))
     for r in results:
         if r["kind"] == "disturbance" and r["feedback"] == "current":
             lost = r["lost_nm"] if r["lost_nm"] is not None else r["max_nm"]  # never lost: at least the maximum
@@ -298,8 +344,9 @@ class Objective:
     """The batch objective of :func:`experiments.search.minimise`: candidates x seeds x cases on an executor."""
 
     def __init__(self, space: Space, setup: Setup, seeds: tuple[int, ...], executor: Executor,
-                 holdout: str | None = None) -> None:
+                 holdout: str | None = None, part: str = DEFAULT_PART) -> None:
         self.space, self.setup, self.seeds, self.executor, self.holdout = space, setup, seeds, executor, holdout
+        self.part = part
 
     def __call__(self, xs: list[np.ndarray]) -> list[Evaluation]:
         return self.run([candidate_overrides(self.setup.params, self.space.overrides(x)) for x in xs])
@@ -307,8 +354,9 @@ class Objective:
     def run(self, overrides: list[dict[str, dict[str, float]]]) -> list[Evaluation]:
         """The evaluations of parameter sets given as overrides of the base parameters."""
         items = [(i, (o, seed, case)) for i, o in enumerate(overrides) for seed in self.seeds
-                 for case in cases()]
-        items += [(i, (o, self.seeds[0], ("breakaway", "", None))) for i, o in enumerate(overrides)]
+                 for case in cases(self.part)]
+        if self.part != "sensor":
+            items += [(i, (o, self.seeds[0], ("breakaway", "", None))) for i, o in enumerate(overrides)]
         results = self.executor.map(run_case, [item for _, item in items], shared=self.setup)
         return [self.evaluate(overrides[i], [(item, r) for (j, item), r in zip(items, results, strict=True)
                                              if j == i]) for i in range(len(overrides))]
@@ -325,7 +373,7 @@ class Objective:
                               "rows": [row for r in results for row in r["rows"]]}
         score = float(np.mean([p["score"] for p in per_seed.values()]))
         return Evaluation(score, {"overrides": overrides, "seeds": {str(s): p for s, p in per_seed.items()},
-                                  "breakaway_nm": breakaway[0]["breakaway_nm"]})
+                                  "breakaway_nm": breakaway[0]["breakaway_nm"] if breakaway else None})
 
 
 def params_toml(overrides: dict[str, dict[str, float]], header: str = "") -> str:
@@ -375,8 +423,9 @@ def markdown(rep: dict[str, Any]) -> str:
 
     s = rep["settings"]
     lines = ["# Identification of the uncertain defaults (experiments.identify_defaults)", "",
-             f"Score {rep['score']:.4f} (mean over seeds {s['seeds']} of RMS ln(sim/paper) over the primary "
-             f"Table VI-VII rows plus behaviour penalties), {rep['evaluations']} evaluations in "
+             f"Score {rep['score']:.4f} (part {s.get('part', DEFAULT_PART)}: mean over seeds {s['seeds']} of RMS "
+             f"ln(sim/paper) over the primary rows of its tables plus behaviour penalties), {rep['evaluations']} "
+             f"evaluations in "
              f"{rep['generations']} generations (the base parameters score {rep['defaults_score']:.4f}); substeps "
              f"rule {s['substeps_rule']}, "
              + ("full-length tests." if s["duration_s"] is None else
@@ -455,6 +504,9 @@ def search_seed_arg(text: str) -> int:
 
 def main(argv: list[str] | None = None) -> None:
     parser = cli_parser(__doc__, __spec__.name)
+    parser.add_argument("--part", choices=tuple(PARTS), default=DEFAULT_PART,
+                        help="which parameters, against which experiments: drivetrain (Tables VI-VII, the default), "
+                             "sensor (Tables III-V, Sec. III-C) or joint (both)")
     parser.add_argument("--out", type=Path, default=Path("identify_run"), metavar="DIR",
                         help="result directory: evaluations, strategy state, best_params.toml, report "
                              "(default identify_run)")
@@ -486,24 +538,31 @@ def main(argv: list[str] | None = None) -> None:
         base = base.replace(simulation={"substeps_rule": "fast"})
     if args.budget < 2:
         parser.error(f"--budget {args.budget}: valid range [2, inf) evaluations")
+    sensor_group = args.holdout in ("calibration", "thermal")
+    if args.holdout is not None and (args.part == "drivetrain" and sensor_group
+                                     or args.part == "sensor" and not sensor_group):
+        parser.error(f"--holdout {args.holdout}: not a figure group of --part {args.part}")
     if not (0.0 < args.sigma0 <= 1.0):
         parser.error(f"--sigma0 {args.sigma0}: valid range (0, 1] (a fraction of each bound's width)")
-    space = default_space(base)
+    space = default_space(base, args.part)
     settings = {"space": [[d.path, d.lo, d.hi] for d in space.dims], "seeds": list(args.seeds),
                 "search_seed": args.search_seed, "substeps_rule": base.simulation.substeps_rule,
                 "duration_s": args.duration, "holdout": args.holdout,
                 "params": str(args.params) if args.params else None}
     if args.sigma0 != DEFAULT_SIGMA0:  # recorded only when set, so directories without the option still resume
         settings["sigma0"] = args.sigma0
+    if args.part != DEFAULT_PART:  # likewise
+        settings["part"] = args.part
     try:
         store = SearchStore(args.out, settings, resume=args.resume)
     except ValueError as exc:
         parser.error(f"--out {args.out}: {exc}")
     executor = executor_from_args(parser, args)
-    objective = Objective(space, Setup(base, args.duration), args.seeds, executor, args.holdout)
+    objective = Objective(space, Setup(base, args.duration), args.seeds, executor, args.holdout, args.part)
     start = time.perf_counter()
-    print(f"identifying {len(space)} parameters, {len(args.seeds)} seed(s), {len(cases()) * len(args.seeds) + 1} "
-          f"runs per candidate, on {executor.where}; results in {args.out}", file=sys.stderr, flush=True)
+    runs = len(cases(args.part)) * len(args.seeds) + (args.part != "sensor")
+    print(f"identifying {len(space)} parameters ({args.part}), {len(args.seeds)} seed(s), {runs} runs per candidate"
+          f", on {executor.where}; results in {args.out}", file=sys.stderr, flush=True)
     saved = store.load_state()
     done_before = saved["evaluations"] if saved else 0
 

@@ -13,15 +13,46 @@ from sim.params import TestbedParams, load_params, source_bound
 FAST = TestbedParams().replace(simulation={"substeps_rule": "fast"})
 
 
-def test_the_space_is_the_source_bounds_of_the_searched_parameters_within_their_valid_ranges():
-    space = ident.default_space()
-    assert [d.path for d in space.dims] == list(ident.SEARCHED)
+@pytest.mark.parametrize("part", list(ident.PARTS))
+def test_the_space_is_the_source_bounds_of_the_searched_parameters_within_their_valid_ranges(part):
+    space = ident.default_space(part=part)
+    assert [d.path for d in space.dims] == list(ident.PARTS[part])
     for d in space.dims:
         lo, hi = source_bound(d.path)
         assert lo <= d.lo < d.hi <= hi
         assert d.log == (lo > 0 and hi / lo > 3)
-    TestbedParams().replace(**space.overrides(np.zeros(len(space))))  # both ends are valid parameter sets
-    TestbedParams().replace(**space.overrides(np.ones(len(space))))
+    for end in (np.zeros(len(space)), np.ones(len(space))):  # both ends are valid parameter sets, ties included
+        TestbedParams().replace(**ident.candidate_overrides(TestbedParams(), space.overrides(end)))
+
+
+def test_tied_curvature_is_the_one_over_gap_squared_expansion():
+    """A reflector's 1/(d - δ)² response is (1/d²)·(1 - u)^-2, u = δ/d: the square of the geometric series
+    1/(1 - u) = Σ u^k, multiplied out. Its quadratic, cubic and quartic terms at the span u = Δ/d, relative to the
+    linear one, are what the tie sets from the quadratic alone."""
+    geometric = np.ones(6)
+    coefficients = np.polynomial.polynomial.polymul(geometric, geometric)[:6]
+    for span in (0.15, 0.2067, 0.3):
+        terms = coefficients[1:5] * span ** np.arange(1, 5)
+        fractions = terms[1:] / terms[0]
+        tied = ident.tied_overrides({"photoreflector": {"quadratic_fraction_max": fractions[0]}})["photoreflector"]
+        assert [tied["quadratic_fraction_max"], tied["cubic_fraction_max"], tied["quartic_fraction_max"]] == \
+            pytest.approx(fractions, rel=1e-6)
+    assert ident.tied_overrides({"friction": {"coulomb_torque_nm": 0.1}}) == {"friction": {"coulomb_torque_nm": 0.1}}
+
+
+def test_the_sensor_part_scores_the_calibration_and_thermal_tables_without_the_motor():
+    """One candidate of the sensor part, one seed: only the calibration and thermal experiments run; every
+    primary row of Tables III-V and Sec. III-C is fitted, no behaviour penalty, no breakaway."""
+    assert ident.cases("sensor") == [("calibration", "", None), ("thermal", "", None)]
+    assert set(ident.cases("joint")) == set(ident.cases("drivetrain")) | set(ident.cases("sensor"))
+    objective = ident.Objective(ident.default_space(part="sensor"), ident.Setup(TestbedParams()), (0,), Executor(1),
+                                part="sensor")
+    (evaluation,) = objective.run([ident.candidate_overrides(TestbedParams(), {})])
+    seed = evaluation.record["seeds"]["0"]
+    assert {r["table"] for r in seed["rows"] if ident.primary(r)} == {"III", "IV", "III-B resolution", "V", "III-C"}
+    assert {r["group"] for r in seed["rows"]} == {"calibration", "thermal"}
+    assert seed["penalties"] == {} and evaluation.record["breakaway_nm"] is None
+    assert evaluation.score == pytest.approx(seed["rms_log_ratio"]) and 0.0 < evaluation.score < 2.0
 
 
 def test_the_objective_is_the_same_in_process_on_two_processes_and_on_a_local_ray_cluster():
@@ -89,7 +120,7 @@ def test_the_command_writes_its_outputs_and_resumes_reusing_its_evaluations(tmp_
     assert len(first) == 2
     params = load_params(out / "best_params.toml")
     report = json.loads((out / "report.json").read_text())
-    assert {p["path"] for p in report["parameters"]} == set(ident.SEARCHED)
+    assert {p["path"] for p in report["parameters"]} == set(ident.DRIVETRAIN)
     assert params.backlash.width_rad == next(p["value"] for p in report["parameters"]
                                              if p["path"] == "backlash.width_rad")
     assert "| table | quantity |" in (out / "report.md").read_text()
@@ -107,7 +138,11 @@ def test_holdout_names_the_groups():
         ident.main(["--holdout", "nonsense"])
     assert exc.value.code == 2
     assert set(ident.GROUPS) == {"steps", "disturbance", "0.05_Nm_sine_0.2_Hz", "0.1_Nm_square_1_Hz",
-                                 "10_Nm_sine_0.2_Hz"}
+                                 "10_Nm_sine_0.2_Hz", "calibration", "thermal"}
+    for part, group in (("drivetrain", "thermal"), ("sensor", "steps")):
+        with pytest.raises(SystemExit) as exc:
+            ident.main(["--part", part, "--holdout", group])
+        assert exc.value.code == 2
 
 
 def test_the_parameter_toml_keeps_what_the_params_file_set_beside_the_candidate(tmp_path, capsys, monkeypatch):

@@ -68,12 +68,13 @@ def test_scalar_and_batch_reads_interleaved_on_one_array_equal_one_batch_read():
     np.testing.assert_array_equal(np.vstack(parts), whole)
 
 
-def test_readout_torque_is_the_calibrations_prediction_of_its_voltages():
-    """The per-tick Eq. 10 (Horner per channel in Python floats) agrees with Calibration.predict."""
+def test_readout_torque_is_the_calibrations_prediction_of_its_voltages_minus_the_tare():
+    """The per-tick Eq. 10 (Horner per channel in Python floats) agrees with Calibration.predict, less the run's
+    tare."""
     params = TestbedParams()
     k_t = derive(params).flexure_stiffness_nm_per_rad
     readout = TorqueSensorReadout(params, seed=2)
     for tau in (-18.0, -0.3, 0.0, 0.05, 7.0, 24.0):
         torque = readout.read_sample(tau / k_t, 27.5)
-        assert torque == pytest.approx(readout.calibration.predict(readout.voltages_v[None, :])[0], rel=1e-12,
-                                       abs=1e-12)
+        predicted = readout.calibration.predict(readout.voltages_v[None, :])[0]
+        assert torque == pytest.approx(predicted - readout.tare_nm, rel=1e-12, abs=1e-12)

@@ -149,6 +149,11 @@ class TorqueSensorReadout:
         Seed of this run's channel noise (and of its tare's, a stream of its own).
     tare_s : float
         Unloaded hold averaged for the tare [s]: 0 (no tare) or at least one control period.
+
+    Attributes
+    ----------
+    tare_nm : float or None
+        The run's tare [N·m] (None before the first read).
     """
 
     def __init__(self, params: TestbedParams | None = None, calibration: Calibration | None = None,
@@ -219,6 +224,11 @@ class TorqueSensorStack(TorqueSensorReadout):
         The map every unit is read through (e.g. the nominal unit's factory calibration).
     tare_s : float
         Unloaded hold averaged for each unit's tare [s] (as :class:`TorqueSensorReadout`).
+
+    Attributes
+    ----------
+    tare_nm : numpy.ndarray
+        Each unit's tare [N·m], (N,) (NaN before a unit's first read).
     """
 
     def __init__(self, n: int, calibration: Calibration, tare_s: float = TARE_S) -> None:

@@ -5,17 +5,19 @@
   friction, backlash, load-dependent losses and the current-to-torque nonlinearity.
 * ``sensor``: :class:`sensor.readout.TorqueSensorReadout` (key ``tau_sensor``), the photo-reflector array read
   once per tick from the flexure's twist and the TMP117 temperature through the factory calibration (QP), with
-  its channel noise, ADC quantisation, hysteresis and thermal drift.
+  its channel noise, ADC quantisation, hysteresis and thermal drift, tared at the start of each run.
 """
 
 from __future__ import annotations
 
-from collections.abc import Callable
+import dataclasses
+from collections.abc import Callable, Sequence
 
 from sensor.readout import TorqueSensorReadout
 from sim.measurements import CurrentEstimate, LoadCell, MotorEncoder, MotorVelocity
 from sim.params import TestbedParams
 from sim.run import Controller, Measurement
+from sim.runlog import RunLog
 
 FEEDBACK_KINDS = ("current", "sensor")
 
@@ -44,6 +46,13 @@ def loop_measurements(kind: str, params: TestbedParams, seed: int = 0, calibrati
     """What a closed loop of the experiments observes: the ``kind`` torque measurement (noise of ``seed``) and
     the motor's encoder and velocity."""
     return [make_feedback(kind, params, seed, calibration), MotorEncoder(), MotorVelocity()]
+
+
+def with_readout_meta(log: RunLog, measurements: Sequence[Measurement]) -> RunLog:
+    """``log`` with the tare [N·m] of the sensor readout among ``measurements`` in its meta (``sensor_tare_nm``:
+    the log's ``tau_sensor`` is the calibration's torque of ``v1`` ... ``v8`` minus it); as it is without one."""
+    tares = [m.tare_nm for m in measurements if isinstance(m, TorqueSensorReadout)]
+    return dataclasses.replace(log, meta={**log.meta, "sensor_tare_nm": tares[0]}) if tares else log
 
 
 def grading_loadcell(params: TestbedParams, seed: int = 0) -> LoadCell:

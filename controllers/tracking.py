@@ -24,7 +24,7 @@ from dataclasses import asdict, dataclass
 
 import numpy as np
 
-from controllers.feedback import grading_loadcell, loop_measurements
+from controllers.feedback import grading_loadcell, loop_measurements, with_readout_meta
 from sim.params import TestbedParams
 from sim.plant import Plant
 from sim.run import Controller, run_loop
@@ -88,11 +88,13 @@ def run_tracking(params: TestbedParams, plant: Plant, controller: Controller, fe
                  meta: dict | None = None) -> RunLog:
     """A torque-tracking run of the experiments: ``controller`` observes the reference, the ``feedback``
     measurement and the motor's encoder and velocity; the load cell that grades it (noise of ``seed``) is
-    recorded as ``tau_loadcell``."""
-    return run_loop(plant, controller, len(reference_nm), measurements=loop_measurements(feedback, params, seed),
-                    recorded=[grading_loadcell(params, seed)], tau_ref_nm=reference_nm, tau_hub_nm=tau_hub_nm,
-                    progress_label=label,
-                    meta={"feedback": feedback, "seed": seed,
-                          "loadcell_reading_noise_n": params.loadcell.reading_noise_n,
-                          "loadcell_amplifier_bandwidth_hz": params.loadcell.amplifier_bandwidth_hz,
-                          "torque_saturation_per_nm": params.motor.torque_saturation_per_nm, **(meta or {})})
+    recorded as ``tau_loadcell``. A sensor-feedback log's meta holds the run's tare (``sensor_tare_nm``)."""
+    measurements = loop_measurements(feedback, params, seed)
+    log = run_loop(plant, controller, len(reference_nm), measurements=measurements,
+                   recorded=[grading_loadcell(params, seed)], tau_ref_nm=reference_nm, tau_hub_nm=tau_hub_nm,
+                   progress_label=label,
+                   meta={"feedback": feedback, "seed": seed,
+                         "loadcell_reading_noise_n": params.loadcell.reading_noise_n,
+                         "loadcell_amplifier_bandwidth_hz": params.loadcell.amplifier_bandwidth_hz,
+                         "torque_saturation_per_nm": params.motor.torque_saturation_per_nm, **(meta or {})})
+    return with_readout_meta(log, measurements)

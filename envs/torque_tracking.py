@@ -62,7 +62,7 @@ class TorqueTrackingEnv(gym.Env):
     | Num | Observation | Unit | Source |
     |-----|-------------|------|--------|
     | 0 | torque reference of this tick | N·m | the task's profile |
-    | 1 | joint torque sensor reading | N·m | photo-reflectors, factory calibration (noise, ADC, hysteresis, drift) |
+    | 1 | joint torque sensor reading | N·m | photo-reflectors, factory calibration, episode tare (noise, ADC, drift) |
     | 2 | motor angle, output side | rad | encoder |
     | 3 | motor velocity, output side | rad/s | driver |
     | 4 | driver's current-based torque estimate | N·m | N·K_t·i, inverse current map (``CurrentEstimate``) |

@@ -29,7 +29,7 @@ from controllers.admittance import (
     PAPER_DESIRED_INERTIA_KGM2,
     AdmittanceController,
 )
-from controllers.feedback import ControllerFactory, build_controller, loop_measurements
+from controllers.feedback import ControllerFactory, build_controller, loop_measurements, with_readout_meta
 from experiments.common import (
     add_experiment_args,
     cli_parser,
@@ -158,11 +158,12 @@ def run_push(params: TestbedParams, push: Push, seed: int = 0, duration_s: float
     def hand_torque(k: int, plant: Plant) -> float:
         return hand.torque_nm(k * dt, plant.output_angle_rad, plant.output_velocity_rad_s)
 
-    log = run_loop(plant, build_controller(controller, lambda p, _: make_controller(p), params, "sensor"),
-                   round(hand.duration_s / dt), measurements=loop_measurements("sensor", params, seed),
-                   external=hand_torque,
-                   progress_label=push.name if progress else None,
-                   meta={"feedback": "sensor", "push_s": hand.push_s, "seed": seed})
+    measurements = loop_measurements("sensor", params, seed)
+    log = with_readout_meta(
+        run_loop(plant, build_controller(controller, lambda p, _: make_controller(p), params, "sensor"),
+                 round(hand.duration_s / dt), measurements=measurements, external=hand_torque,
+                 progress_label=push.name if progress else None,
+                 meta={"feedback": "sensor", "push_s": hand.push_s, "seed": seed}), measurements)
     hand_angle, _ = hand.path(log["time"])
     omega, omega_ref = log["qd_motor"], log["omega_ref"]
     peak_torque = float(np.abs(log["tau_ext"]).max())

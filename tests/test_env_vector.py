@@ -167,7 +167,8 @@ def test_per_env_options_of_the_wrong_length_or_value_raise_naming_the_option():
 
 def test_a_sensor_stack_reads_what_each_units_own_readout_reads():
     """Four units of randomised parameters and their own seeds, fed the same twists and stepping temperatures:
-    the stack's (N,) torques and voltages are each readout's, bit for bit, including a unit restarted midway."""
+    the stack's (N,) torques, voltages and tares are each readout's, bit for bit, including a unit restarted
+    midway (re-tared at its first read)."""
     nominal = TestbedParams()
     calibration = factory_calibration(nominal)
     rng = np.random.default_rng(4)
@@ -186,6 +187,7 @@ def test_a_sensor_stack_reads_what_each_units_own_readout_reads():
         want = [s.read_sample(float(twists[k, i]), float(temperatures[k, i])) for i, s in enumerate(singles)]
         np.testing.assert_array_equal(got, want, err_msg=f"sample {k}")
         np.testing.assert_array_equal(stack.voltages_v, [s.voltages_v for s in singles], err_msg=f"sample {k}")
+        np.testing.assert_array_equal(stack.tare_nm, [s.tare_nm for s in singles], err_msg=f"sample {k}")
 
 
 def test_a_longer_command_history_leaves_a_run_unchanged_and_a_shorter_one_is_refused():

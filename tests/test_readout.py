@@ -1,11 +1,13 @@
 """The calibrated sensor in the control loop reads the flexure torque through the channel model."""
 
+import dataclasses
+
 import numpy as np
 import pytest
 
 from models.gim8108_testbed.derived import derive
 from sensor.photoreflector import PhotoReflectorArray
-from sensor.readout import TorqueSensorReadout, factory_calibration
+from sensor.readout import TARE_S, TorqueSensorReadout, factory_calibration, tare_offset
 from sim.params import TestbedParams
 
 
@@ -68,12 +70,71 @@ def test_scalar_and_batch_reads_interleaved_on_one_array_equal_one_batch_read():
     np.testing.assert_array_equal(np.vstack(parts), whole)
 
 
-def test_readout_torque_is_the_calibrations_prediction_of_its_voltages():
-    """The per-tick Eq. 10 (Horner per channel in Python floats) agrees with Calibration.predict."""
+def test_readout_torque_is_the_calibrations_prediction_of_its_voltages_minus_the_tare():
+    """The per-tick Eq. 10 (Horner per channel in Python floats) agrees with Calibration.predict, less the run's
+    tare."""
     params = TestbedParams()
     k_t = derive(params).flexure_stiffness_nm_per_rad
     readout = TorqueSensorReadout(params, seed=2)
     for tau in (-18.0, -0.3, 0.0, 0.05, 7.0, 24.0):
         torque = readout.read_sample(tau / k_t, 27.5)
-        assert torque == pytest.approx(readout.calibration.predict(readout.voltages_v[None, :])[0], rel=1e-12,
-                                       abs=1e-12)
+        predicted = readout.calibration.predict(readout.voltages_v[None, :])[0]
+        assert torque == pytest.approx(predicted - readout.tare_nm, rel=1e-12, abs=1e-12)
+
+
+def _held(readout, twist_rad: float, temperature_c: float, n: int) -> np.ndarray:
+    return np.array([readout.read_sample(twist_rad, temperature_c) for _ in range(n)])
+
+
+def test_a_tare_removes_a_calibration_offset_exactly():
+    """Adding 0.3 N·m to the calibration's offset c0 moves an untared reading by 0.3 N·m and a tared one by
+    nothing (to rounding): the tare is of the reading the calibration gives."""
+    params = TestbedParams()
+    k_t = derive(params).flexure_stiffness_nm_per_rad
+    calibration = factory_calibration(params)
+    theta = calibration.theta.copy()
+    theta[24] += 0.3
+    shifted = dataclasses.replace(calibration, theta=theta)
+    twist = 2.0 / k_t
+    for tare_s, moved in ((0.0, 0.3), (TARE_S, 0.0)):
+        base = _held(TorqueSensorReadout(params, calibration, seed=4, tare_s=tare_s), twist, 26.0, 50)
+        other = _held(TorqueSensorReadout(params, shifted, seed=4, tare_s=tare_s), twist, 26.0, 50)
+        np.testing.assert_allclose(other - base, moved, rtol=0.0, atol=1e-12)
+
+
+def test_after_a_tare_the_unloaded_sensor_reads_zero_within_the_noise_of_the_means():
+    """Off the calibration temperature the untared zero is off by the zero drift; tared at that temperature,
+    the mean of 5000 unloaded readings is zero within 4 standard errors of the two means (the tare's n = 1000
+    samples and these), and the raw offset is larger than that bound."""
+    params = TestbedParams()
+    dt = params.simulation.control_period_s
+    n_tare, n = round(TARE_S / dt), 5000
+    for temperature in (25.0, 30.0):
+        tared = _held(TorqueSensorReadout(params, seed=11), 0.0, temperature, n)
+        bound = 4.0 * tared.std() * np.sqrt(1.0 / n_tare + 1.0 / n)
+        assert abs(tared.mean()) < bound
+    raw = _held(TorqueSensorReadout(params, seed=11, tare_s=0.0), 0.0, 30.0, n)
+    assert abs(raw.mean()) > 3.0 * bound
+
+
+def test_the_tare_leaves_the_runs_noise_unchanged_and_is_taken_at_the_first_reads_temperature():
+    """The tare's hold draws its own noise: a tared run reads the untared run of the same seed less one
+    constant, the tare taken at the first read's board temperature (not at later ones), also after reset()."""
+    params = TestbedParams()
+    twist = 0.01 * np.sin(np.linspace(0.0, 6.0, 300))
+    temperature = 26.0 + 0.0078125 * np.arange(300)
+    tared, raw = TorqueSensorReadout(params, seed=3), TorqueSensorReadout(params, seed=3, tare_s=0.0)
+    for _ in range(2):
+        got = np.array([tared.read_sample(x, t) for x, t in zip(twist, temperature, strict=True)])
+        want = np.array([raw.read_sample(x, t) for x, t in zip(twist, temperature, strict=True)])
+        assert tared.tare_nm == tare_offset(params, tared.calibration, 3, 26.0)
+        np.testing.assert_allclose(want - got, tared.tare_nm, rtol=0.0, atol=1e-14)
+        tared.reset()
+        raw.reset()
+
+
+def test_tare_s_outside_its_valid_values_is_refused_naming_them():
+    """0 (no tare) or at least one control period."""
+    for bad in (-1.0, 1e-4, float("nan"), float("inf")):
+        with pytest.raises(ValueError, match=r"tare_s = .*valid values are 0 \(no tare\) or \[0.001, inf\) s"):
+            TorqueSensorReadout(tare_s=bad)

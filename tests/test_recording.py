@@ -62,11 +62,13 @@ def test_sensor_run_recording_has_every_entity_with_its_sample_count(tmp_path, s
 
 
 def test_loop_log_voltages_are_the_ones_the_sensor_reading_was_computed_from(sensor_log):
-    """v1..v8 of a sensor-feedback log map through the factory calibration to tau_sensor, tick by tick."""
+    """v1..v8 of a sensor-feedback log map through the factory calibration, less the run's tare (in the log's
+    meta), to tau_sensor, tick by tick."""
     from sensor.readout import factory_calibration
 
     volts = np.column_stack([sensor_log[f"v{k}"] for k in range(1, 9)])
-    predicted = factory_calibration(TestbedParams()).predict(volts)
+    predicted = factory_calibration(TestbedParams()).predict(volts) - sensor_log.meta["sensor_tare_nm"]
+    assert sensor_log.meta["sensor_tare_nm"] != 0.0
     np.testing.assert_allclose(predicted, sensor_log["tau_sensor"], rtol=1e-9, atol=1e-12)
 
 

@@ -68,7 +68,8 @@ def draw_unit(params: TestbedParams) -> SensorUnit:
     v0 = pr.operating_point_v + rng.uniform(-1.0, 1.0, CHANNELS) * pr.operating_point_spread_v
     # noise levels log-uniformly between the quietest and the noisiest channel, both ends present
     levels = np.exp(np.linspace(math.log(pr.noise_min_v or 1e-12), math.log(pr.noise_max_v or 1e-12), CHANNELS))
-    noise = rng.permutation(levels) if pr.noise_max_v > 0 else np.zeros(CHANNELS)
+    order = rng.permutation(CHANNELS)  # drawn whatever the levels, so noiseless units keep every other draw
+    noise = levels[order] if pr.noise_max_v > 0 else np.zeros(CHANNELS)
     cross = pr.crosstalk_v_per_nm * (1.0 + pr.crosstalk_spread * rng.uniform(-1.0, 1.0, CHANNELS))
     tempco = pr.optical_tempco_per_k + pr.optical_tempco_spread_per_k * rng.uniform(-1.0, 1.0, CHANNELS)
     return SensorUnit(

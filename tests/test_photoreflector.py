@@ -224,3 +224,12 @@ def test_the_default_5_khz_chain_settles_within_one_1_khz_sample():
     sensor = PhotoReflectorArray(p)
     v = sensor.read(np.array([0.0, twist(10.0)]))
     np.testing.assert_allclose(v[1], sensor.ideal_voltages(twist([10.0]))[0], rtol=0, atol=2 * sensor.lsb_v)
+
+
+def test_a_noiseless_unit_is_the_same_unit_without_its_noise():
+    """Channel noise set to zero changes the noise levels and nothing else the unit seed draws."""
+    noisy = draw_unit(P)
+    quiet = draw_unit(P.replace(photoreflector={"noise_min_v": 0.0, "noise_max_v": 0.0}))
+    assert np.all(quiet.noise_v == 0.0) and np.all(noisy.noise_v > 0.0)
+    for name in ("sensitivity_v_per_m", "crosstalk_v_per_nm", "tempco_per_k"):
+        np.testing.assert_array_equal(getattr(quiet, name), getattr(noisy, name))

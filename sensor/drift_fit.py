@@ -16,12 +16,12 @@ paper used MATLAB) plus a constant offset ``d``, without which a zero drift that
 at the ends of the range cannot be fitted at all. The paper does not say which Gaussian it used.
 
 Fits minimise the sum of squared errors over the given points: linear least squares for the
-polynomial; for the rational function the linearised problem (Levy 1959: multiply through by the
-denominator, ``a1 t^2 + a2 t + a3 - tau (a4 t^2 + a5 t) = tau``) gives the start of a
-``scipy.optimize.least_squares`` refinement of the true residual; the Gaussian is fitted by
-``least_squares`` from a few heuristic starts. A rational fit whose denominator has a root on the
-data's temperature range is rejected (:class:`DriftFitError`): it would put a pole inside the range
-the compensation is used on.
+polynomial; for the rational function over the constants whose denominator has no root on the data's
+temperature range (a pole there would sit inside the range the compensation is used on), by
+``scipy.optimize.least_squares`` in a parametrisation that keeps the denominator positive on the range,
+from several starts (:func:`fit_rational_drift`); the Gaussian by ``least_squares`` from a few heuristic
+starts. A rational fit no better than its numerator alone (a quadratic) is rejected
+(:class:`DriftFitError`).
 """
 
 from __future__ import annotations
@@ -64,7 +64,7 @@ POLE_FREE_GRID = (16, 32)
 """Points of the search grid over the pole-free denominators (the angles phi in [0, pi/2], psi in [0, pi))."""
 
 POLE_FREE_STARTS = 4
-"""Best grid points refined by ``least_squares`` (besides the quadratic and the linearised start)."""
+"""Best grid points refined by ``least_squares`` (besides the quadratic)."""
 
 IMPROVEMENT_FLOOR = 1e-12
 """Smallest RMS improvement over the quadratic fallback that counts as better, relative to ``max |drift|``
@@ -72,7 +72,7 @@ IMPROVEMENT_FLOOR = 1e-12
 
 
 class DriftFitError(ValueError):
-    """A drift model could not be fitted acceptably (e.g. a denominator root on the data range)."""
+    """A drift model could not be fitted acceptably (e.g. a rational fit no better than a quadratic)."""
 
 
 def _rational(p: np.ndarray, t: np.ndarray) -> np.ndarray:
@@ -207,10 +207,13 @@ def _pole_free_denominator(theta: np.ndarray, s: np.ndarray) -> tuple[np.ndarray
     return d, d_phi, d_psi
 
 
-def _pole_free_numerator(theta: np.ndarray, s: np.ndarray, y: np.ndarray) -> np.ndarray:
-    """Least-squares numerator ``n0 + n1 s + n2 s^2`` for the denominator of ``theta`` (linear in n)."""
-    d = _pole_free_denominator(theta, s)[0]
-    return _lstsq_scaled(np.column_stack([np.ones_like(s), s, s * s]) / d[:, None], y)
+def _pole_free_numerator(theta: np.ndarray, s: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, float]:
+    """Least-squares numerator ``(n0, n1, n2)`` of ``n0 + n1 s + n2 s^2`` for the denominator of ``theta``
+    (a linear problem), and its sum of squared errors."""
+    basis = np.column_stack([np.ones_like(s), s, s * s]) / _pole_free_denominator(theta, s)[0][:, None]
+    n = _lstsq_scaled(basis, y)
+    r = basis @ n - y
+    return n, float(r @ r)
 
 
 def _pole_free_refine(x0: np.ndarray, s: np.ndarray, y: np.ndarray) -> np.ndarray:
@@ -254,16 +257,12 @@ def _pole_free_candidates(t: np.ndarray, y: np.ndarray) -> list[np.ndarray]:
     n_phi, n_psi = POLE_FREE_GRID
     grid = [np.array([(i + 0.5) * 0.5 * math.pi / n_phi, j * math.pi / n_psi])
             for i in range(n_phi) for j in range(n_psi)]
-    cost = []
-    for theta in grid:
-        d = _pole_free_denominator(theta, s)[0]
-        r = _pole_free_numerator(theta, s, y) @ np.vstack([np.ones_like(s), s, s * s]) / d - y
-        cost.append(float(r @ r))
+    cost = [_pole_free_numerator(theta, s, y)[1] for theta in grid]
     quadratic = np.array([0.25 * math.pi, 0.5 * math.pi])  # alpha = 0, beta = delta: d = 1/2 + epsilon
     starts = [quadratic] + [grid[k] for k in np.argsort(cost)[:POLE_FREE_STARTS]]
     out = []
     for theta in starts:
-        x = _pole_free_refine(np.r_[_pole_free_numerator(theta, s, y), theta], s, y)
+        x = _pole_free_refine(np.r_[_pole_free_numerator(theta, s, y)[0], theta], s, y)
         p = _eq20_from_scaled(x, centre, half_width)
         if p is not None:
             out.append(p)
@@ -275,19 +274,15 @@ def fit_rational_drift(t_c: np.ndarray, drift_nm: np.ndarray) -> DriftFit:
     data's temperature range.
 
     Minimises ``sum_k (tau_drift(t_k; a) - drift_k)^2`` over the constants whose denominator has no root in
-    [min t, max t], from several starts, and returns the best:
-
-    * the linearised (Levy) solution of ``[t^2, t, 1, -drift t^2, -drift t] a = drift``, refined without
-      constraint (kept only if its denominator has no root on the range);
-    * the pole-free family: with ``s = (t - centre) / half-width`` in [-1, 1], every quadratic positive on
-      [-1, 1] is up to a factor ``(alpha + beta s)^2 + delta^2 (1 - s^2)`` (Lukacs's theorem). The fit's
-      denominator is that plus ``epsilon`` (:data:`POLE_FREE_FLOOR`), with (alpha, beta, delta) on the unit
-      sphere at angles (phi, psi): positive on the range for every (phi, psi), so ``least_squares`` over the
-      numerator's three constants and (phi, psi) needs no constraint. It is started from the quadratic
-      (a4 = a5 = 0) and from the :data:`POLE_FREE_STARTS` best points of a :data:`POLE_FREE_GRID` grid of
-      (phi, psi), each with its least-squares numerator.
-
-    A pole and a nearly cancelling numerator root outside the range are kept: the fit is used on the range.
+    [min t, max t]. With ``s = (t - centre) / half-width`` in [-1, 1], every quadratic nonnegative on
+    [-1, 1] is ``(alpha + beta s)^2 + delta^2 (1 - s^2)`` (Lukacs's theorem). The fit's denominator is that
+    plus ``epsilon`` (:data:`POLE_FREE_FLOOR`), with (alpha, beta, delta) on the unit sphere at angles
+    (phi, psi): positive on the range for every (phi, psi), so ``least_squares`` over the numerator's three
+    constants and (phi, psi) needs no constraint. For a fixed denominator the numerator is a linear least
+    squares problem; the refinement starts from the quadratic (a4 = a5 = 0) and from the
+    :data:`POLE_FREE_STARTS` best of a :data:`POLE_FREE_GRID` grid of (phi, psi), each with its
+    least-squares numerator, and the best result is kept (converted to Eq. 20's constants in t). A pole
+    and a nearly cancelling numerator root outside the range are kept: the fit is used on the range.
 
     Acceptance: the quadratic ``c2 t^2 + c1 t + c0`` (Eq. 20's numerator alone, linear least squares) is the
     fallback. The best pole-free fit is returned if its RMS error is below the quadratic's by more than
@@ -384,7 +379,7 @@ class DriftModelComparison:
     fits : dict
         Model name -> :class:`DriftFit`, for the models that could be fitted.
     failures : dict
-        Model name -> error message, for those that could not (e.g. a rational pole in range).
+        Model name -> error message, for those that could not (e.g. a rational fit no better than a quadratic).
     ranking : tuple of str
         Fitted models by ascending ``rmse_nm``.
     best : str

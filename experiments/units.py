@@ -11,7 +11,9 @@ III-V and Sec. III-C the output gives the units' minimum, median and maximum, th
 (``unit_seed`` 0 by default) and the paper's percentile among the units: 100 x (the units whose figure is below
 the paper's, plus half of those equal to it) / the units with the figure. A unit whose calibration or thermal
 experiment fails is counted and named with its error, and has no figure of that experiment; a unit whose
-rational drift fit (Eq. 20) is rejected is named with the model its compensation uses instead. Figures the same
+rational drift fit (Eq. 20) is rejected is named with the model its compensation uses instead; each zero-drift
+model's median RMS error on the chamber records, and for how many units it is the lowest, is beside the paper's
+statement that the rational function fits best. Figures the same
 for every unit (the MINI85's one-hour errors: the reference, not the sensor) are printed apart. Figure:
 ``units_spread.png`` (each figure's units on a log axis, normalised by the paper's value). 5-30 s of CPU per
 unit (``benchmarks/README.md``).
@@ -21,7 +23,7 @@ from __future__ import annotations
 
 import sys
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -75,19 +77,21 @@ class Setup:
 @dataclass(frozen=True)
 class UnitRun:
     """One unit's primary rows (``{table, quantity, unit, paper, sim}``) of both experiments, the drift model its
-    compensation uses (None if the thermal experiment failed) and each failed experiment's error."""
+    compensation uses (None if the thermal experiment failed), each failed experiment's error, and each fitted
+    zero-drift model's RMS error on the chamber record [N·m]."""
 
     unit_seed: int
     rows: tuple[dict[str, Any], ...]
     compensation_model: str | None
     errors: dict[str, str]
+    drift_fit_rms_nm: dict[str, float] = field(default_factory=dict)
 
 
 def run_unit(setup: Setup, unit_seed: int) -> UnitRun:
     """The calibration and thermal experiments on the unit ``unit_seed``: an item of the executor. An experiment
     that fails (an infeasible calibration, no drift fit) leaves its error instead of its rows."""
     params = setup.params.replace(photoreflector={"unit_seed": unit_seed})
-    rows, errors, model = [], {}, None
+    rows, errors, model, drift_rms = [], {}, None, {}
     for name, run in (("calibration", run_calibration), ("thermal", run_thermal)):
         try:
             result = run(params, setup.seed)
@@ -97,7 +101,9 @@ def run_unit(setup: Setup, unit_seed: int) -> UnitRun:
         rows += [{k: r[k] for k in ("table", "quantity", "unit", "paper")}
                  | {"sim": None if r["sim"] is None else float(r["sim"])} for r in result.rows() if is_primary(r)]
         model = getattr(result, "compensation_model", model)
-    return UnitRun(unit_seed, tuple(rows), model, errors)
+        if hasattr(result, "models"):
+            drift_rms = {name: fit.rmse_nm for name, fit in result.models.fits.items()}
+    return UnitRun(unit_seed, tuple(rows), model, errors, drift_rms)
 
 
 @dataclass(frozen=True)
@@ -174,13 +180,28 @@ class UnitsResult:
         return {r.unit_seed: r.compensation_model for r in self.runs
                 if r.compensation_model not in (None, "rational")}
 
+    def drift_models(self) -> tuple[dict[str, float], dict[str, int]]:
+        """Each zero-drift model's median RMS error on the chamber record over the units it was fitted on [N·m],
+        and for how many units each model has the lowest RMS."""
+        names = sorted({m for r in self.runs for m in r.drift_fit_rms_nm})
+        medians = {m: float(np.median([r.drift_fit_rms_nm[m] for r in self.runs if m in r.drift_fit_rms_nm]))
+                   for m in names}
+        lowest = {m: 0 for m in names}
+        for r in self.runs:
+            if r.drift_fit_rms_nm:
+                lowest[min(r.drift_fit_rms_nm, key=r.drift_fit_rms_nm.__getitem__)] += 1
+        return medians, lowest
+
     def to_dict(self) -> dict[str, Any]:
+        medians, lowest = self.drift_models()
         return {"units": [r.unit_seed for r in self.runs], "seed": self.seed, "reference_unit": self.reference_unit,
                 "percentile_definition": PERCENTILE_DEFINITION,
                 "figures": [f.to_dict(self.reference_unit) for f in self.figures],
                 "not_simulated": self.not_simulated,
                 "failures": {str(u): e for u, e in self.failures.items()},
-                "rational_fit_rejected": {str(u): m for u, m in self.fallbacks.items()}}
+                "rational_fit_rejected": {str(u): m for u, m in self.fallbacks.items()},
+                "drift_fit_rms_nm": {str(r.unit_seed): r.drift_fit_rms_nm for r in self.runs},
+                "drift_fit_median_rms_nm": medians, "drift_fit_lowest_rms_units": lowest}
 
     def text(self) -> str:
         """The table (paper beside the units' min / median / max, its percentile, the reference unit), then the
@@ -213,6 +234,11 @@ class UnitsResult:
                      f"{len(self.fallbacks)} of {len(self.runs)} units"
                      + (": " + ", ".join(f"unit {u} ({m})" for u, m in self.fallbacks.items())
                         if self.fallbacks else ""))
+        medians, lowest = self.drift_models()
+        if medians:
+            lines.append("zero-drift models on the chamber record (paper: the rational function fits best): median RMS "
+                         + ", ".join(f"{m} {v:.5g}" for m, v in medians.items()) + " N·m; lowest RMS for "
+                         + ", ".join(f"{m} {n}" for m, n in lowest.items()) + f" of {len(self.runs)} units")
         return "\n".join(lines)
 
     def plot(self, directory: Path) -> list[Path]:

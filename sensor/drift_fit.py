@@ -16,12 +16,12 @@ paper used MATLAB) plus a constant offset ``d``, without which a zero drift that
 at the ends of the range cannot be fitted at all. The paper does not say which Gaussian it used.
 
 Fits minimise the sum of squared errors over the given points: linear least squares for the
-polynomial; for the rational function the linearised problem (Levy 1959: multiply through by the
-denominator, ``a1 t^2 + a2 t + a3 - tau (a4 t^2 + a5 t) = tau``) gives the start of a
-``scipy.optimize.least_squares`` refinement of the true residual; the Gaussian is fitted by
-``least_squares`` from a few heuristic starts. A rational fit whose denominator has a root on the
-data's temperature range is rejected (:class:`DriftFitError`): it would put a pole inside the range
-the compensation is used on.
+polynomial; for the rational function over the constants whose denominator has no root on the data's
+temperature range (a pole there would sit inside the range the compensation is used on), by
+``scipy.optimize.least_squares`` in a parametrisation that keeps the denominator positive on the range,
+from several starts (:func:`fit_rational_drift`); the Gaussian by ``least_squares`` from a few heuristic
+starts. A rational fit no better than its numerator alone (a quadratic) is rejected
+(:class:`DriftFitError`).
 """
 
 from __future__ import annotations
@@ -55,9 +55,24 @@ tiny, and a recovered constant should be limited by the data, not by the stoppin
 LSQ_MAX_NFEV = 20_000
 """Function-evaluation cap for ``least_squares``."""
 
+POLE_FREE_FLOOR = 1e-3
+"""epsilon of the pole-free denominator family (:func:`fit_rational_drift`) [-]: on the data range the
+denominator's smallest value is at least ``epsilon / (2 + epsilon)`` (about 1/2000) of its largest, which keeps a
+pole (and the numerator root that nearly cancels it) out of the range by a margin."""
+
+POLE_FREE_GRID = (16, 32)
+"""Points of the search grid over the pole-free denominators (the angles phi in [0, pi/2], psi in [0, pi))."""
+
+POLE_FREE_STARTS = 4
+"""Best grid points refined by ``least_squares`` (besides the quadratic)."""
+
+IMPROVEMENT_FLOOR = 1e-12
+"""Smallest RMS improvement over the quadratic fallback that counts as better, relative to ``max |drift|``
+(the rounding of the fitted values; below it the two fits are the same)."""
+
 
 class DriftFitError(ValueError):
-    """A drift model could not be fitted acceptably (e.g. a denominator root on the data range)."""
+    """A drift model could not be fitted acceptably (e.g. a rational fit no better than a quadratic)."""
 
 
 def _rational(p: np.ndarray, t: np.ndarray) -> np.ndarray:
@@ -174,11 +189,104 @@ def _denominator_roots_in_range(a4: float, a5: float, lo: float, hi: float) -> l
     return sorted(float(x) for x in real if lo <= x <= hi)
 
 
-def fit_rational_drift(t_c: np.ndarray, drift_nm: np.ndarray) -> DriftFit:
-    """Fit Eq. 20, ``(a1 t^2 + a2 t + a3) / (a4 t^2 + a5 t + 1)``, by least squares.
+def _unit_vector(theta: np.ndarray) -> tuple[float, float, float]:
+    """(alpha, beta, delta) on the unit sphere from the angles (phi, psi) [rad]."""
+    phi, psi = theta
+    return math.sin(phi) * math.cos(psi), math.sin(phi) * math.sin(psi), math.cos(phi)
 
-    Solves ``minimize_a sum_k (tau_drift(t_k; a) - drift_k)^2``, started from the linearised
-    (Levy) solution of ``[t^2, t, 1, -drift t^2, -drift t] a = drift``.
+
+def _pole_free_denominator(theta: np.ndarray, s: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """``d(s) = (alpha + beta s)^2 + delta^2 (1 - s^2) + epsilon`` and its derivatives in (phi, psi)."""
+    phi, psi = theta
+    alpha, beta, delta = _unit_vector(theta)
+    u = alpha + beta * s
+    w = 1.0 - s * s
+    d = u * u + delta * delta * w + POLE_FREE_FLOOR
+    d_phi = 2.0 * u * (math.cos(phi) * (math.cos(psi) + math.sin(psi) * s)) - 2.0 * delta * math.sin(phi) * w
+    d_psi = 2.0 * u * (math.sin(phi) * (math.cos(psi) * s - math.sin(psi)))
+    return d, d_phi, d_psi
+
+
+def _pole_free_numerator(theta: np.ndarray, s: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, float]:
+    """Least-squares numerator ``(n0, n1, n2)`` of ``n0 + n1 s + n2 s^2`` for the denominator of ``theta``
+    (a linear problem), and its sum of squared errors."""
+    basis = np.column_stack([np.ones_like(s), s, s * s]) / _pole_free_denominator(theta, s)[0][:, None]
+    n = _lstsq_scaled(basis, y)
+    r = basis @ n - y
+    return n, float(r @ r)
+
+
+def _pole_free_refine(x0: np.ndarray, s: np.ndarray, y: np.ndarray) -> np.ndarray:
+    """``least_squares`` over x = (n0, n1, n2, phi, psi) of ``N(s) / d(s) - drift``."""
+    powers = np.column_stack([np.ones_like(s), s, s * s])
+
+    def resid(x):
+        return powers @ x[:3] / _pole_free_denominator(x[3:], s)[0] - y
+
+    def jac(x):
+        d, d_phi, d_psi = _pole_free_denominator(x[3:], s)
+        q = -(powers @ x[:3]) / (d * d)
+        return np.column_stack([powers / d[:, None], q * d_phi, q * d_psi])
+
+    return scipy.optimize.least_squares(resid, x0, jac=jac, method="lm", x_scale="jac", ftol=LSQ_TOL,
+                                        xtol=LSQ_TOL, gtol=LSQ_TOL, max_nfev=LSQ_MAX_NFEV).x
+
+
+def _eq20_from_scaled(x: np.ndarray, centre: float, half_width: float) -> np.ndarray | None:
+    """Eq. 20 constants (a1..a5) of ``N(s) / d(s)``, ``s = (t - centre) / half_width``; None if the
+    denominator is 0 at t = 0, where Eq. 20 fixes it at 1."""
+    alpha, beta, delta = _unit_vector(x[3:])
+    to_t = np.polynomial.Polynomial([-centre / half_width, 1.0 / half_width])
+    num = np.zeros(3)
+    den = np.zeros(3)
+    coef = np.polynomial.Polynomial(x[:3])(to_t).coef
+    num[:coef.size] = coef
+    coef = np.polynomial.Polynomial([alpha * alpha + delta * delta + POLE_FREE_FLOOR, 2.0 * alpha * beta,
+                                     beta * beta - delta * delta])(to_t).coef
+    den[:coef.size] = coef
+    if not (np.isfinite(den[0]) and abs(den[0]) > np.finfo(float).eps * np.max(np.abs(den))):
+        return None
+    return np.array([num[2], num[1], num[0], den[2], den[1]]) / den[0]
+
+
+def _pole_free_candidates(t: np.ndarray, y: np.ndarray) -> list[np.ndarray]:
+    """Eq. 20 constants refined from the quadratic and the best points of a grid over the pole-free
+    denominators (fit_rational_drift)."""
+    centre, half_width = 0.5 * (t.max() + t.min()), 0.5 * (t.max() - t.min())
+    s = (t - centre) / half_width
+    n_phi, n_psi = POLE_FREE_GRID
+    grid = [np.array([(i + 0.5) * 0.5 * math.pi / n_phi, j * math.pi / n_psi])
+            for i in range(n_phi) for j in range(n_psi)]
+    cost = [_pole_free_numerator(theta, s, y)[1] for theta in grid]
+    quadratic = np.array([0.25 * math.pi, 0.5 * math.pi])  # alpha = 0, beta = delta: d = 1/2 + epsilon
+    starts = [quadratic] + [grid[k] for k in np.argsort(cost)[:POLE_FREE_STARTS]]
+    out = []
+    for theta in starts:
+        x = _pole_free_refine(np.r_[_pole_free_numerator(theta, s, y)[0], theta], s, y)
+        p = _eq20_from_scaled(x, centre, half_width)
+        if p is not None:
+            out.append(p)
+    return out
+
+
+def fit_rational_drift(t_c: np.ndarray, drift_nm: np.ndarray) -> DriftFit:
+    """Fit Eq. 20, ``(a1 t^2 + a2 t + a3) / (a4 t^2 + a5 t + 1)``, by least squares without a pole on the
+    data's temperature range.
+
+    Minimises ``sum_k (tau_drift(t_k; a) - drift_k)^2`` over the constants whose denominator has no root in
+    [min t, max t]. With ``s = (t - centre) / half-width`` in [-1, 1], every quadratic nonnegative on
+    [-1, 1] is ``(alpha + beta s)^2 + delta^2 (1 - s^2)`` (Lukacs's theorem). The fit's denominator is that
+    plus ``epsilon`` (:data:`POLE_FREE_FLOOR`), with (alpha, beta, delta) on the unit sphere at angles
+    (phi, psi): positive on the range for every (phi, psi), so ``least_squares`` over the numerator's three
+    constants and (phi, psi) needs no constraint. For a fixed denominator the numerator is a linear least
+    squares problem; the refinement starts from the quadratic (a4 = a5 = 0) and from the
+    :data:`POLE_FREE_STARTS` best of a :data:`POLE_FREE_GRID` grid of (phi, psi), each with its
+    least-squares numerator, and the best result is kept (converted to Eq. 20's constants in t). A pole
+    and a nearly cancelling numerator root outside the range are kept: the fit is used on the range.
+
+    Acceptance: the quadratic ``c2 t^2 + c1 t + c0`` (Eq. 20's numerator alone, linear least squares) is the
+    fallback. The best pole-free fit is returned if its RMS error is below the quadratic's by more than
+    :data:`IMPROVEMENT_FLOOR` x ``max |drift|``; otherwise the denominator adds nothing and the fit is rejected.
 
     Parameters
     ----------
@@ -190,28 +298,25 @@ def fit_rational_drift(t_c: np.ndarray, drift_nm: np.ndarray) -> DriftFit:
     Raises
     ------
     DriftFitError
-        If the fitted denominator ``a4 t^2 + a5 t + 1`` has a root in [min t, max t].
+        If no pole-free fit is better than the quadratic; the message gives both RMS errors [N m].
     """
     t, y = _check(t_c, drift_nm, "rational")
-    lin = np.column_stack([t * t, t, np.ones_like(t), -y * t * t, -y * t])
-    p0 = _lstsq_scaled(lin, y)
-
-    def resid(p):
-        return _rational(p, t) - y
-
-    best = p0
+    lo, hi = float(t.min()), float(t.max())
+    best, best_sse = None, math.inf
     with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
-        if np.all(np.isfinite(resid(p0))):
-            sol = scipy.optimize.least_squares(resid, p0, x_scale="jac", ftol=LSQ_TOL,
-                                               xtol=LSQ_TOL, gtol=LSQ_TOL, max_nfev=LSQ_MAX_NFEV)
-            if np.sum(sol.fun ** 2) <= np.sum(resid(p0) ** 2):
-                best = sol.x
-    roots = _denominator_roots_in_range(best[3], best[4], float(t.min()), float(t.max()))
-    if roots:
+        for p in _pole_free_candidates(t, y):
+            r = _rational(p, t) - y
+            sse = float(r @ r)
+            if np.isfinite(sse) and sse < best_sse and not _denominator_roots_in_range(p[3], p[4], lo, hi):
+                best, best_sse = p, sse
+    quadratic = np.polynomial.Polynomial.fit(t, y, 2)
+    rms_quadratic = math.sqrt(float(np.mean((quadratic(t) - y) ** 2)))
+    rms = math.sqrt(best_sse / t.size)
+    if best is None or not rms < rms_quadratic - IMPROVEMENT_FLOOR * float(np.max(np.abs(y))):
         raise DriftFitError(
-            f"rational drift fit rejected: its denominator {best[3]:.6g} t^2 + {best[4]:.6g} t + 1 "
-            f"is zero at t = {', '.join(f'{r:.4g}' for r in roots)} degC, inside the data range "
-            f"[{t.min():g}, {t.max():g}] degC (a pole in the compensation range)")
+            f"rational drift fit rejected: the best Eq. 20 fit without a pole in [{lo:g}, {hi:g}] degC "
+            f"(RMS {rms:.6g} N m) is no better than its numerator alone, the quadratic (RMS {rms_quadratic:.6g} "
+            f"N m; difference {rms_quadratic - rms:.3g} N m)")
     return _result("rational", best, t, y)
 
 
@@ -274,7 +379,7 @@ class DriftModelComparison:
     fits : dict
         Model name -> :class:`DriftFit`, for the models that could be fitted.
     failures : dict
-        Model name -> error message, for those that could not (e.g. a rational pole in range).
+        Model name -> error message, for those that could not (e.g. a rational fit no better than a quadratic).
     ranking : tuple of str
         Fitted models by ascending ``rmse_nm``.
     best : str

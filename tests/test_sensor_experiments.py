@@ -7,6 +7,7 @@ import pytest
 
 from experiments import calibration as calibration_cli
 from experiments import thermal as thermal_cli
+from sensor import drift_fit
 from sensor.chamber import CHAMBER_SETPOINTS_C, chamber_params, chamber_run
 from sensor.evaluation import evaluate_sensor, resolution_gain
 from sensor.photoreflector import draw_unit
@@ -160,12 +161,27 @@ def _split(rows, n_primary):
     return primary, alternatives
 
 
-def test_a_unit_whose_rational_fit_has_a_pole_is_compensated_with_the_best_other_model():
-    """Unit 3's rational fit has a pole inside the chamber's range: the experiment completes, says which model
-    compensates, and its one-hour errors are against the applied torque (the MINI85's own row is its noise)."""
+def test_a_nearly_straight_drift_is_compensated_with_a_pole_free_rational_fit():
+    """Unit 3's chamber record (a nearly straight zero drift plus noise): the rational fit has no denominator
+    root on the chamber's range, and the compensation uses it."""
     params = TestbedParams().replace(photoreflector={"unit_seed": 3})
     result = thermal_cli.run_thermal(params, seed=0)
-    assert "rational" in result.models.failures and "pole" in result.models.failures["rational"]
+    assert result.models.failures == {} and result.compensation_model == "rational"
+    a4, a5 = result.models.fits["rational"].coefficients[3:]
+    t = np.linspace(result.chamber.tmp117_c.min(), result.chamber.tmp117_c.max(), 10_001)
+    assert np.all(a4 * t * t + a5 * t + 1.0 > 0.0)
+
+
+def test_a_rejected_rational_fit_is_replaced_by_the_best_other_model(monkeypatch):
+    """With the rational fit rejected the experiment completes, compensates with the best of the others, and
+    its one-hour errors are against the applied torque (the MINI85's own row is its noise)."""
+
+    def rejected(t_c, drift_nm):
+        raise drift_fit.DriftFitError("rejected for this test")
+
+    monkeypatch.setitem(drift_fit._FITTERS, "rational", rejected)
+    result = thermal_cli.run_thermal(TestbedParams().replace(photoreflector={"unit_seed": 3}), seed=0)
+    assert result.models.failures == {"rational": "rejected for this test"}
     assert result.compensation_model == result.models.best != "rational"
     rec = result.drift_tests[10.0]
     mini85 = result.figures_by_name["mini85_drift_rms_10nm"][0]

@@ -50,6 +50,17 @@ def test_spreads_keep_each_units_value_and_name_what_is_not_simulated_or_the_sam
     assert result.failures == {2: {"thermal": "RuntimeError: no fit"}} and result.fallbacks == {1: "poly4"}
 
 
+def test_drift_models_give_each_models_median_rms_and_how_often_it_is_lowest():
+    """Medians over the units each model was fitted on; a unit without a thermal result counts for none."""
+    runs = [UnitRun(0, (), "rational", {}, {"rational": 1.0, "poly4": 2.0, "gaussian": 4.0}),
+            UnitRun(1, (), "poly4", {}, {"poly4": 1.0, "gaussian": 3.0}),
+            UnitRun(2, (), "rational", {}, {"rational": 3.0, "poly4": 5.0, "gaussian": 2.0}),
+            UnitRun(3, (), None, {"thermal": "RuntimeError: no fit"})]
+    medians, lowest = units.UnitsResult(0, 0, runs, [], []).drift_models()
+    assert medians == {"gaussian": 3.0, "poly4": 2.0, "rational": 2.0}
+    assert lowest == {"gaussian": 1, "poly4": 1, "rational": 1}
+
+
 def fake_calibration(params, seed):
     value = 1.0 + params.photoreflector.unit_seed + seed
     return SimpleNamespace(rows=lambda: [row("max error", value), {**row("max error", 99.0), "reading": "alternative",

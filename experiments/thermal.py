@@ -10,8 +10,9 @@ mechanics are not stepped (see :mod:`sensor.chamber`): the whole experiment take
 The one-hour "RMS error" of Table V is each instrument's reading against the applied torque (0 N·m, or the
 10 N·m of a weight): the paper lists one for the MINI85 itself, which an error against the MINI85 could not
 have. The MINI85's row is simulated (its noise and quantisation); the DYJN-104 is not modelled, so its row
-has no simulated value. If the rational fit is rejected for a unit (a pole inside the chamber's range), the
-compensation uses the best-fitting of the other models and the output says so. The zero drift per 1 °C is also
+has no simulated value (:data:`NOT_MODELLED`). If the rational fit is rejected for a unit (no pole-free rational
+fit better than its quadratic numerator, :func:`sensor.drift_fit.fit_rational_drift`), the compensation uses the
+best-fitting of the other models and the output says so. The zero drift per 1 °C is also
 reported under the other readings the paper's sentence allows (:data:`ALTERNATIVE_FIGURES`), as rows of their own.
 """
 
@@ -58,6 +59,7 @@ PAPER_FIGURES = (
     ("dyjn104_drift_rms_10nm", "V", "1-h drift RMS at 10 N·m, DYJN-104 (not modelled)", "N·m", 0.0314),
     ("drift_per_kelvin_pct_fs", "III-C", "zero drift per 1 °C", "% FS", 0.014),
 )
+NOT_MODELLED = ("dyjn104_drift_rms_0nm", "dyjn104_drift_rms_10nm")  # rows the simulation has no value for
 _PER_KELVIN_PCT_FS = paper_value("drift_per_kelvin_pct_fs", PAPER_FIGURES)
 _PER_KELVIN_REASON = ("The paper gives no definition of its 'maximum temperature change of 1 °C' figure: a slope of "
                       "the zero drift, over a range it does not name.")

@@ -50,6 +50,7 @@ def test_the_sensor_part_scores_the_calibration_and_thermal_tables_without_the_m
     (evaluation,) = objective.run([ident.candidate_overrides(TestbedParams(), {})])
     seed = evaluation.record["seeds"]["0"]
     assert {r["table"] for r in seed["rows"] if ident.primary(r)} == {"III", "IV", "III-B resolution", "V", "III-C"}
+    assert all(r["sim"] is not None for r in seed["rows"] if ident.primary(r))  # the DYJN-104's rows are not fitted
     assert {r["group"] for r in seed["rows"]} == {"calibration", "thermal"}
     assert seed["penalties"] == {} and evaluation.record["breakaway_nm"] is None
     assert evaluation.score == pytest.approx(seed["rms_log_ratio"]) and 0.0 < evaluation.score < 2.0

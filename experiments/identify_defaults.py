@@ -409,8 +409,8 @@ def report(space: Space, base: TestbedParams, best_x: np.ndarray, best: Evaluati
                         "reading": row.get("reading", "primary"),
                         "paper": row["paper"], "group": row["group"], "fitted": primary(row) and row["group"]
                         != holdout, "sim": sims, "ratio": math.exp(float(np.mean(logs))) if logs else None})
-    groups = {g: float(np.mean([group_scores(p["rows"]).get(g, math.nan) for p in seeds.values()]))
-              for g in GROUPS}
+    scored = [group_scores(p["rows"]) for p in seeds.values()]
+    groups = {g: float(np.mean([s[g] for s in scored])) for g in GROUPS if all(g in s for s in scored)}
     return {"score": best.score, "settings": settings, "evaluations": evaluations, "generations": generations,
             "holdout": holdout, "holdout_score": groups.get(holdout) if holdout else None,
             "per_seed": {s: {"rms_log_ratio": p["rms_log_ratio"], "penalties": p["penalties"]}

@@ -120,6 +120,8 @@ SENSOR = ("photoreflector.quadratic_fraction_max", "photoreflector.noise_min_v",
           "photoreflector.slip_fraction_min", "photoreflector.slip_fraction_max", "photoreflector.crosstalk_spread",
           "photoreflector.optical_tempco_per_k", "photoreflector.optical_tempco_spread_per_k")
 PARTS = {"drivetrain": DRIVETRAIN, "sensor": SENSOR, "joint": DRIVETRAIN + SENSOR}
+# The sensor part's experiments by case kind, each its own figure group.
+SENSOR_CASES = {"calibration": run_calibration, "thermal": run_thermal}
 DEFAULT_PART = "drivetrain"
 FIT_TABLES = ("VI", "VII", "III", "IV", "III-B resolution", "V", "III-C")
 # Rows reported but not fitted: figures of an instrument the simulation does not model.
@@ -210,7 +212,7 @@ def cases(part: str = DEFAULT_PART) -> list[tuple[str, str, Any]]:
             out.append(("disturbance", feedback, None))
             out += [("waveform", feedback, i) for i in range(len(WAVEFORMS))]
     if part != "drivetrain":
-        out += [("calibration", "", None), ("thermal", "", None)]
+        out += [(kind, "", None) for kind in SENSOR_CASES]
     return out
 
 
@@ -222,8 +224,8 @@ def run_case(setup: Setup, item: tuple[dict, int, tuple[str, str, Any]]) -> dict
         params = setup.params.replace(**overrides)
         if kind == "breakaway":
             return {"kind": kind, "rows": [], "breakaway_nm": measure_breakaway(params).torque_nm}
-        if kind in ("calibration", "thermal"):
-            experiment = (run_calibration if kind == "calibration" else run_thermal)(params, seed)
+        if kind in SENSOR_CASES:
+            experiment = SENSOR_CASES[kind](params, seed)
             return {"kind": kind, "feedback": "", "group": kind,
                     "rows": [{**row, "group": kind} for row in experiment.rows()]}
         if kind == "step":
@@ -541,7 +543,7 @@ def main(argv: list[str] | None = None) -> None:
         base = base.replace(simulation={"substeps_rule": "fast"})
     if args.budget < 2:
         parser.error(f"--budget {args.budget}: valid range [2, inf) evaluations")
-    sensor_group = args.holdout in ("calibration", "thermal")
+    sensor_group = args.holdout in SENSOR_CASES
     if args.holdout is not None and (args.part == "drivetrain" and sensor_group
                                      or args.part == "sensor" and not sensor_group):
         parser.error(f"--holdout {args.holdout}: not a figure group of --part {args.part}")

@@ -33,6 +33,13 @@ def _apparent(ev, axis):
     return rec, out - out[rec.schedule.branch == 0].mean()
 
 
+def _held_level_residual(ev, axis):
+    """Largest held-level mean of the apparent T_z output over the moment test [N·m]: the deterministic part."""
+    rec, apparent = _apparent(ev, axis)
+    levels = rec.schedule.level_nm
+    return max(abs(apparent[levels == lv].mean()) for lv in np.unique(levels[~np.isnan(levels)]))
+
+
 def _no_load_max_excursion(ev, n, seed):
     """Largest |output - mean| of the QP output over a no-load record of n samples [N·m]."""
     array = PhotoReflectorArray(TestbedParams(), seed=seed)
@@ -45,21 +52,25 @@ def _no_load_max_excursion(ev, n, seed):
 
 @pytest.mark.parametrize("axis", ["x", "y"])
 def test_crosstalk_is_nonzero_stable_across_seeds_and_made_of_noise(evaluations, axis):
-    """Figure > 0, within 25 % between seeds; the held-level means (the deterministic tilt response left
-    after calibration) are under a third of it, and it lies within [0.7, 1.6] x the largest noise excursion of
-    the calibrated output over an equally long no-load record."""
+    """Figure > 0, within 25 % between seeds; the held-level means (the tilt response the QP leaves for lower
+    noise) are under half of it, and it lies within [0.7, 1.6] x the largest noise excursion of the calibrated
+    output over an equally long no-load record."""
     figs = [evaluations[s].figures[f"crosstalk_t{axis}_pct_fs"][0] for s in (0, 1)]
     assert min(figs) > 0.0
     assert abs(figs[0] - figs[1]) / figs[0] < 0.25
     ev = evaluations[0]
-    rec, apparent = _apparent(ev, axis)
-    levels = rec.schedule.level_nm
-    held = np.unique(levels[~np.isnan(levels)])
-    deterministic = max(abs(apparent[levels == lv].mean()) for lv in held)
+    deterministic = _held_level_residual(ev, axis)
     figure_nm = figs[0] / 100.0 * FS_NM
-    assert deterministic < figure_nm / 3.0
-    floor = _no_load_max_excursion(ev, len(apparent), seed=77)
+    assert deterministic < figure_nm / 2.0
+    floor = _no_load_max_excursion(ev, len(ev.crosstalk_records[axis].voltages_v), seed=77)
     assert 0.7 * floor <= figure_nm <= 1.6 * floor
+
+
+def test_the_tilt_residual_the_qp_leaves_grows_with_channel_noise(evaluations):
+    """The QP trades the tilt response's null against noise: with the noisiest channel at 0.96 mV instead of the
+    default 2.4 mV the held-level residual falls more than twofold (measured 0.0062 against 0.0204 N·m)."""
+    quieter = evaluate_sensor(TestbedParams().replace(photoreflector={"noise_max_v": 9.6e-4}), seed=0)
+    assert _held_level_residual(evaluations[0], "x") > 2.0 * _held_level_residual(quieter, "x")
 
 
 @pytest.mark.parametrize("axis", ["x", "y"])

@@ -189,14 +189,14 @@ def test_the_hub_comes_to_rest_against_its_stop(params):
 @pytest.mark.parametrize("params", [P, FAST], ids=["accurate", "fast"])
 def test_the_hub_stays_on_its_stop_through_the_admittance_pushes(params):
     """While the flexure presses the hub on its stop (``sim.characterize.stop_loaded``) the hub moves against the
-    gear only by the stop's compliance: RMS rate <= C·RMS(dτ_hand/dt) over those ticks, C = 10 % of the gap per
-    18 N·m, the compliance the stop is held to (tests/test_plant_physics; the hand's torque is the load). A
-    hub that chatters on its stop moves against the gear at ~0.1 rad/s."""
+    gear only by the stop's compliance: RMS rate <= C·RMS(dτ_flexure/dt) over those ticks, C = 10 % of the gap
+    per 18 N·m, the compliance the stop is held to (tests/test_plant_physics; the flexure's torque is the load
+    that presses the hub on the stop). A hub that chatters on its stop moves against the gear at ~0.1 rad/s."""
     compliance_rad_per_nm = 0.1 * params.backlash.width_rad / params.motor.peak_torque_nm
     for push, log in run_admittance(params, seed=0).logs().items():
         loaded = stop_loaded(log)
-        hand_rate = np.diff(np.asarray(log["tau_ext"])) / np.diff(np.asarray(log["time"]))
-        bound = compliance_rad_per_nm * float(np.sqrt(np.mean(hand_rate[loaded] ** 2)))
+        load_rate = np.diff(np.asarray(log["tau_flexure"])) / np.diff(np.asarray(log["time"]))
+        bound = compliance_rad_per_nm * float(np.sqrt(np.mean(load_rate[loaded] ** 2)))
         assert loaded.sum() > 500 and np.sqrt(np.mean(backlash_rate_rad_s(log)[loaded] ** 2)) <= bound, push
 
 

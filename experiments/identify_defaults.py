@@ -105,6 +105,7 @@ from experiments.step import (
 from experiments.thermal import NOT_MODELLED, run_thermal
 from experiments.thermal import PAPER_FIGURES as THERMAL_FIGURES
 from models.gim8108_testbed.derived import FIXTURES, SOLVER_TIME_CONSTANTS, physics_timestep
+from sensor.calibration import InfeasibleCalibrationError
 from sim.characterize import measure_breakaway
 from sim.executor import Executor
 from sim.params import ParameterError, TestbedParams, field_range, source_bound
@@ -218,7 +219,8 @@ def cases(part: str = DEFAULT_PART) -> list[tuple[str, str, Any]]:
 
 def run_case(setup: Setup, item: tuple[dict, int, tuple[str, str, Any]]) -> dict[str, Any]:
     """One case of one candidate and seed: its rows (each tagged with its group) and behaviour figures; or the
-    error a refused parameter set raises. An item of the executor."""
+    error a refused parameter set (or a sensor no calibration can meet the paper's bound for) raises. An item of
+    the executor."""
     overrides, seed, (kind, feedback, arg) = item
     try:
         params = setup.params.replace(**overrides)
@@ -243,7 +245,7 @@ def run_case(setup: Setup, item: tuple[dict, int, tuple[str, str, Any]]) -> dict
             stats = {"amplitude_nm": case.waveform.amplitude_nm, "positive_share": case.positive_share,
                      "output_level": case.output_level}
             group = waveform_group(case.waveform.name)
-    except (ParameterError, RuntimeError) as exc:
+    except (ParameterError, InfeasibleCalibrationError, RuntimeError) as exc:
         return {"kind": kind, "error": f"{type(exc).__name__}: {exc}"}
     case = dataclasses.replace(case, log=None)
     result = SinusoidResult([case], seed) if kind == "waveform" else StepResult([case], seed)

@@ -134,6 +134,7 @@ class InfeasibleCalibrationError(ValueError):
         self.e_max_nm = float(e_max_nm)
         self.smallest_feasible_e_max_nm = float(smallest_feasible_e_max_nm)
         self.n_samples = int(n_samples)
+        self.fs_nm = float(fs_nm)
         super().__init__(
             f"QP calibration is infeasible: no theta satisfies |A theta - y| <= e_max = "
             f"{e_max_nm:.6g} N m ({100 * e_max_nm / fs_nm:.4g} % FS) on all {n_samples} samples; "
@@ -141,6 +142,10 @@ class InfeasibleCalibrationError(ValueError):
             f"({100 * smallest_feasible_e_max_nm / fs_nm:.4g} % FS), from the LP "
             f"min t s.t. |A theta - y| <= t (HiGHS)."
         )
+
+    def __reduce__(self):
+        """Rebuilt from its fields, so the error crosses process boundaries (a worker's calibration)."""
+        return type(self), (self.e_max_nm, self.smallest_feasible_e_max_nm, self.n_samples, self.fs_nm)
 
 
 @dataclass(frozen=True)

@@ -10,6 +10,7 @@ from __future__ import annotations
 import concurrent.futures
 import json
 import math
+import pickle
 import re
 import threading
 
@@ -409,6 +410,13 @@ def test_infeasible_bound_raises_with_smallest_feasible_e_max(seed, factorizatio
     fit = cal.fit_qp(v, tau, gamma=10.0, quiet_mask=mask, e_max_nm=e_ok)
     assert np.max(np.abs(cal.design_matrix(v) @ fit.theta - tau)) <= (
         e_ok + fit.diagnostics.feasibility_tol_nm)
+
+
+def test_the_infeasibility_error_survives_pickling_so_it_crosses_process_boundaries():
+    """A calibration in a worker process (the executor's Monte Carlo, the identification) raises it back."""
+    err = pickle.loads(pickle.dumps(cal.InfeasibleCalibrationError(0.01, 0.02, 100, 80.0)))
+    assert (err.e_max_nm, err.smallest_feasible_e_max_nm, err.n_samples, err.fs_nm) == (0.01, 0.02, 100, 80.0)
+    assert "smallest feasible e_max is 0.02 N m" in str(err)
 
 
 @settings(max_examples=12, deadline=None, database=None,

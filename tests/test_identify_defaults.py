@@ -7,6 +7,7 @@ import numpy as np
 import pytest
 
 from experiments import identify_defaults as ident
+from sensor.calibration import InfeasibleCalibrationError
 from sim.executor import Executor
 from sim.params import TestbedParams, load_params, source_bound
 
@@ -182,6 +183,17 @@ def test_a_candidate_the_parameters_refuse_keeps_its_overrides_for_run_case_to_s
     base = TestbedParams().replace(friction={"breakaway_torque_nm": 0.12, "coulomb_torque_nm": 0.09})
     overrides = {"friction": {"coulomb_torque_nm": 0.13}}
     assert ident.candidate_overrides(base, overrides) == overrides
+
+
+def test_a_sensor_candidate_no_calibration_can_meet_is_scored_as_an_error_not_raised(monkeypatch):
+    """A calibration that cannot meet the paper's bound (InfeasibleCalibrationError) makes the case an error
+    row, which the score counts as infeasible, instead of ending the search."""
+    def infeasible(params, seed):
+        raise InfeasibleCalibrationError(0.01, 0.02, 100, 80.0)
+
+    monkeypatch.setitem(ident.SENSOR_CASES, "calibration", infeasible)
+    out = ident.run_case(ident.Setup(TestbedParams()), ({}, 0, ("calibration", "", None)))
+    assert out["error"].startswith("InfeasibleCalibrationError: QP calibration is infeasible")
 
 
 @pytest.mark.parametrize("seed", ["-1", str(2**32)])

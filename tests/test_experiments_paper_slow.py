@@ -27,15 +27,12 @@ OUT_OF_BAND = {
     # the paper's current-feedback square output reaches ≈ +0.24 N·m (max y ≈ -0.04 N·m, the other root of its
     # peak, would force an RMS >= 0.10 N·m, above its 0.092); ours moves both ways at 14 % of the reference.
     "0.1 N·m square 1 Hz, current feedback: peak error": 0.413,
-    # the record is the load cell's noise floor (0.0025 N·m) plus the tared sensor's mean error over the test
-    # (0.0018 N·m): the loop adds about 0.001 N·m, not the ramp-following error the paper's figure implies.
-    "disturbance, sensor feedback: RMS error": 0.558,
     # friction at reversals under load and the sensor's error at 10 N·m: the paper's 10 N·m error sits at the
-    # crests (peak / RMS 2.8), ours is spread (0.2) (docs/fidelity.md).
-    "0.05 N·m sine 0.2 Hz, sensor feedback: peak error": 1.937,
-    "0.1 N·m square 1 Hz, sensor feedback: peak error": 1.577,
-    "10 N·m sine 0.2 Hz, sensor feedback: RMS error": 1.916,
-    "10 N·m sine 0.2 Hz, sensor feedback: peak error": 0.143,
+    # crests (peak / RMS 2.8), ours is spread (0.4) (docs/fidelity.md).
+    "0.05 N·m sine 0.2 Hz, sensor feedback: peak error": 1.927,
+    "0.1 N·m square 1 Hz, sensor feedback: peak error": 1.555,
+    "10 N·m sine 0.2 Hz, sensor feedback: RMS error": 1.849,
+    "10 N·m sine 0.2 Hz, sensor feedback: peak error": 0.269,
 }
 # Sec. IV behaviours not reproduced: the current-feedback square's output moves both ways (55 % of its impulse
 # positive) at 14 % of the reference's level, short of the 25 % an actuating output needs.

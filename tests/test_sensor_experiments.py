@@ -69,7 +69,7 @@ def test_qp_resolution_gain_survives_equal_channel_noise(seed):
 def test_qp_resolution_gain_vanishes_without_channel_specific_slip(seed):
     """Equal slip fractions (0.9 %) with the default 14x noise spread: the slip is the same fraction of the
     twist in every channel, no weighting cancels it, and LS is already near the QP (gain < 1.2; measured
-    1.01-1.07x over units 1000-1005)."""
+    1.01-1.09x over units 1000-1005, seeds 0-5)."""
     params = TestbedParams().replace(photoreflector={"unit_seed": 1000 + seed, "slip_fraction_min": 0.009,
                                                      "slip_fraction_max": 0.009})
     ls_std, qp_std = resolution_gain(params, seed)

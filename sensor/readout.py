@@ -31,7 +31,7 @@ from sim.runlog import STANDARD_UNITS, VOLTAGE_COLUMNS
 # The factory calibration's run seed: the noise of the calibration record, not of later runs.
 FACTORY_CALIBRATION_SEED = 0
 # [s] assumed: the unloaded hold a rig averages for its tare before an experiment (the paper does not describe
-# one); at 1 kHz its mean carries the reading's noise over sqrt(1000), 0.0003 N·m for the default unit, an eighth
+# one); at 1 kHz its mean carries the reading's noise over sqrt(1000), 0.0003 N·m for the default unit, a ninth
 # of the paper's sensor-feedback step errors (Table VI)
 TARE_S = 1.0
 # The tare hold's channel noise: a stream of its own, spawned from the run's seed (the run's noise is unchanged)

@@ -413,7 +413,7 @@ def test_infeasible_bound_raises_with_smallest_feasible_e_max(seed, factorizatio
 
 
 def test_the_infeasibility_error_survives_pickling_so_it_crosses_process_boundaries():
-    """A calibration in a worker process (the executor's Monte Carlo, the identification) raises it back."""
+    """A calibration that fails in a worker process (an item of sim.executor) raises it back in the caller."""
     err = pickle.loads(pickle.dumps(cal.InfeasibleCalibrationError(0.01, 0.02, 100, 80.0)))
     assert (err.e_max_nm, err.smallest_feasible_e_max_nm, err.n_samples, err.fs_nm) == (0.01, 0.02, 100, 80.0)
     assert "smallest feasible e_max is 0.02 N m" in str(err)

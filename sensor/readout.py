@@ -7,10 +7,11 @@ photo-reflector array once per control tick with the plant's twist and the TMP11
 quantisation, hysteresis, bandwidth and thermal drift reach the controller.
 
 Each run starts with a tare, as a rig zeroes its torque sensor before an experiment: the mean reading of the
-unloaded sensor (zero twist) over a hold of ``tare_s`` at the board temperature of the run's first read is
-subtracted from every reading of the run (:func:`tare_offset`). It removes the calibration's own zero error and
-the zero drift between the calibration temperature and the rig's; the Eq. 20 compensation is not applied in the
-loop (the board warms by under 0.05 K over a motor experiment, docs/fidelity.md).
+unloaded sensor (zero twist) over a hold of ``photoreflector.tare_s`` (1 s; 0 reads without a tare) at the
+board temperature of the run's first read is subtracted from every reading of the run (:func:`tare_offset`).
+It removes the calibration's own zero error and the zero drift between the calibration temperature and the
+rig's; the Eq. 20 compensation is not applied in the loop (the board warms by under 0.05 K over a motor
+experiment, docs/fidelity.md).
 """
 
 from __future__ import annotations
@@ -30,10 +31,6 @@ from sim.runlog import STANDARD_UNITS, VOLTAGE_COLUMNS
 
 # The factory calibration's run seed: the noise of the calibration record, not of later runs.
 FACTORY_CALIBRATION_SEED = 0
-# [s] assumed: the unloaded hold a rig averages for its tare before an experiment (the paper does not describe
-# one); at 1 kHz its mean carries the reading's noise over sqrt(1000), 0.0003 N·m for the default unit, a ninth
-# of the paper's sensor-feedback step errors (Table VI)
-TARE_S = 1.0
 # The tare hold's channel noise: a stream of its own, spawned from the run's seed (the run's noise is unchanged)
 TARE_NOISE_STREAM = 1
 
@@ -113,16 +110,17 @@ def check_tare_s(tare_s: float, control_period_s: float) -> float:
 
 
 def tare_offset(params: TestbedParams, calibration: Calibration, seed: int, temperature_c: float,
-                tare_s: float = TARE_S) -> float:
+                tare_s: float | None = None) -> float:
     """The tare of a run [N·m]: the mean calibrated reading of the unloaded sensor (zero twist, no moments)
-    over ``tare_s`` [s] of samples at the control rate, at the board temperature ``temperature_c`` [°C].
+    over ``tare_s`` [s] (``photoreflector.tare_s`` if None) of samples at the control rate, at the board
+    temperature ``temperature_c`` [°C].
 
     The sensor of ``params`` starts from rest, with the channel noise of its own stream of the run's ``seed``
     (:data:`TARE_NOISE_STREAM`); each sample is the reading :class:`TorqueSensorReadout` gives for it. 0.0 if
     ``tare_s`` is 0. Raises ValueError for a ``tare_s`` that is neither 0 nor at least one control period.
     """
     dt = params.simulation.control_period_s
-    n = round(check_tare_s(tare_s, dt) / dt)
+    n = round(check_tare_s(params.photoreflector.tare_s if tare_s is None else tare_s, dt) / dt)
     if n == 0:
         return 0.0
     stream = int(np.random.SeedSequence([seed, TARE_NOISE_STREAM]).generate_state(1)[0])
@@ -147,8 +145,9 @@ class TorqueSensorReadout:
         Map from channel voltages to torque; :func:`factory_calibration` (QP) if None.
     seed : int
         Seed of this run's channel noise (and of its tare's, a stream of its own).
-    tare_s : float
-        Unloaded hold averaged for the tare [s]: 0 (no tare) or at least one control period.
+    tare_s : float, optional
+        Unloaded hold averaged for the tare [s]: 0 (no tare) or at least one control period;
+        ``photoreflector.tare_s`` of ``params`` if None.
 
     Attributes
     ----------
@@ -157,11 +156,12 @@ class TorqueSensorReadout:
     """
 
     def __init__(self, params: TestbedParams | None = None, calibration: Calibration | None = None,
-                 seed: int = 0, tare_s: float = TARE_S) -> None:
+                 seed: int = 0, tare_s: float | None = None) -> None:
         self.params = params or TestbedParams()
         self.calibration = calibration or factory_calibration(self.params)
         self.seed = seed
-        self.tare_s = check_tare_s(tare_s, self.params.simulation.control_period_s)
+        self.tare_s = check_tare_s(self.params.photoreflector.tare_s if tare_s is None else tare_s,
+                                   self.params.simulation.control_period_s)
         th = self.calibration.theta  # [V^3, V^2, V] coefficients per channel, then the offset
         # (c3_k, c2_k, c1_k) per channel and c0, as Python floats: the per-tick path (see read)
         self._rows = tuple(zip(th[0:8].tolist(), th[8:16].tolist(), th[16:24].tolist(), strict=True))
@@ -222,8 +222,9 @@ class TorqueSensorStack(TorqueSensorReadout):
         Number of sensors; each is set by :meth:`set_unit` before the first read.
     calibration : Calibration
         The map every unit is read through (e.g. the nominal unit's factory calibration).
-    tare_s : float
-        Unloaded hold averaged for each unit's tare [s] (as :class:`TorqueSensorReadout`).
+    tare_s : float, optional
+        Unloaded hold averaged for each unit's tare [s] (as :class:`TorqueSensorReadout`); each unit's
+        ``photoreflector.tare_s`` if None.
 
     Attributes
     ----------
@@ -231,10 +232,10 @@ class TorqueSensorStack(TorqueSensorReadout):
         Each unit's tare [N·m], (N,) (NaN before a unit's first read).
     """
 
-    def __init__(self, n: int, calibration: Calibration, tare_s: float = TARE_S) -> None:
+    def __init__(self, n: int, calibration: Calibration, tare_s: float | None = None) -> None:
         self.n = n
         self.calibration = calibration
-        self.tare_s = float(tare_s)  # checked against each unit's control period in set_unit
+        self.tare_s = None if tare_s is None else float(tare_s)  # checked against each unit's params in set_unit
         self._coefficients = channel_coefficients(calibration.theta)
         self._offset = float(calibration.theta[24])
         self._array = PhotoReflectorStack(n)
@@ -248,7 +249,8 @@ class TorqueSensorStack(TorqueSensorReadout):
     def set_unit(self, i: int, params: TestbedParams, seed: int) -> None:
         """Sensor i becomes the unit of ``params`` with the channel noise of ``seed``, from rest; its tare is
         taken at its next read."""
-        check_tare_s(self.tare_s, params.simulation.control_period_s)
+        if self.tare_s is not None:
+            check_tare_s(self.tare_s, params.simulation.control_period_s)
         self._array.set_unit(i, PhotoReflectorArray(params, seed=seed))
         self._tare_pending[i] = (params, seed)
 

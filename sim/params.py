@@ -405,6 +405,10 @@ class PhotoReflectorParams:
     adc_bits: int = quantity(16, "1", "paper Sec. II: 16-bit ADC", 8, 32)
     adc_reference_v: float = quantity(3.3, "V", "paper Sec. III-B: 3.3 V referenced ADC", 0.0, 10.0,
                                       low_open=True)
+    tare_s: float = quantity(
+        1.0, "s", "assumed: the unloaded hold a rig averages for its tare at the start of each run (the paper does "
+        "not describe one); its mean carries the reading's noise over sqrt(1000) at 1 kHz. 0 reads without a tare",
+        0.0, 60.0)
     full_scale_nm: float = quantity(
         80.0, "N·m", "paper Sec. III-B: 'the full-scale (FS) is defined as the design maximum T_z^max = 80 N·m'; "
         "every % FS figure (Tables III-IV, the error bound e_max = 0.2 % FS of Eq. 14) is relative to it",
@@ -586,6 +590,9 @@ def _validate_cross(p: TestbedParams) -> None:
         if getattr(pr, low) > getattr(pr, high):
             raise ParameterError(f"photoreflector.{low} = {getattr(pr, low)} {unit} must not exceed "
                                  f"photoreflector.{high} = {getattr(pr, high)} {unit}")
+    if not (pr.tare_s == 0.0 or pr.tare_s >= p.simulation.control_period_s):
+        raise ParameterError(f"photoreflector.tare_s = {pr.tare_s} s: valid values are 0 (no tare) or "
+                             f"[{p.simulation.control_period_s:g}, 60] s (at least one control period)")
     if p.motor.command_delay_s > 20 * p.simulation.control_period_s:
         raise ParameterError(f"motor.command_delay_s = {p.motor.command_delay_s} s: valid range "
                              f"[0, {20 * p.simulation.control_period_s:g}] s (20 control periods)")

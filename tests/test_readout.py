@@ -7,8 +7,8 @@ import pytest
 
 from models.gim8108_testbed.derived import derive
 from sensor.photoreflector import PhotoReflectorArray
-from sensor.readout import TARE_S, TorqueSensorReadout, factory_calibration, tare_offset
-from sim.params import TestbedParams
+from sensor.readout import TorqueSensorReadout, factory_calibration, tare_offset
+from sim.params import ParameterError, TestbedParams
 
 
 def test_scalar_read_equals_the_array_read_sample_by_sample():
@@ -96,7 +96,7 @@ def test_a_tare_removes_a_calibration_offset_exactly():
     theta[24] += 0.3
     shifted = dataclasses.replace(calibration, theta=theta)
     twist = 2.0 / k_t
-    for tare_s, moved in ((0.0, 0.3), (TARE_S, 0.0)):
+    for tare_s, moved in ((0.0, 0.3), (params.photoreflector.tare_s, 0.0)):
         base = _held(TorqueSensorReadout(params, calibration, seed=4, tare_s=tare_s), twist, 26.0, 50)
         other = _held(TorqueSensorReadout(params, shifted, seed=4, tare_s=tare_s), twist, 26.0, 50)
         np.testing.assert_allclose(other - base, moved, rtol=0.0, atol=1e-12)
@@ -108,7 +108,7 @@ def test_after_a_tare_the_unloaded_sensor_reads_zero_within_the_noise_of_the_mea
     samples and these), and the raw offset is larger than that bound."""
     params = TestbedParams()
     dt = params.simulation.control_period_s
-    n_tare, n = round(TARE_S / dt), 5000
+    n_tare, n = round(params.photoreflector.tare_s / dt), 5000
     for temperature in (25.0, 30.0):
         tared = _held(TorqueSensorReadout(params, seed=11), 0.0, temperature, n)
         bound = 4.0 * tared.std() * np.sqrt(1.0 / n_tare + 1.0 / n)
@@ -138,3 +138,14 @@ def test_tare_s_outside_its_valid_values_is_refused_naming_them():
     for bad in (-1.0, 1e-4, float("nan"), float("inf")):
         with pytest.raises(ValueError, match=r"tare_s = .*valid values are 0 \(no tare\) or \[0.001, inf\) s"):
             TorqueSensorReadout(tare_s=bad)
+
+
+def test_the_tare_is_a_parameter_every_run_reads_and_its_invalid_values_name_the_field():
+    """``photoreflector.tare_s = 0`` (e.g. from a --params file) reads as the readout's ``tare_s=0``; a hold
+    shorter than one control period is refused by the parameters, naming the field and its valid values."""
+    untared = TestbedParams().replace(photoreflector={"tare_s": 0.0})
+    by_param = _held(TorqueSensorReadout(untared, seed=5), 0.0, 30.0, 20)
+    by_argument = _held(TorqueSensorReadout(TestbedParams(), seed=5, tare_s=0.0), 0.0, 30.0, 20)
+    np.testing.assert_array_equal(by_param, by_argument)
+    with pytest.raises(ParameterError, match=r"photoreflector.tare_s = 0.0005 s: valid values are 0 \(no tare\)"):
+        TestbedParams().replace(photoreflector={"tare_s": 5e-4})

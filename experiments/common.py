@@ -28,9 +28,11 @@ def cli_parser(doc: str, module: str) -> argparse.ArgumentParser:
     return argparse.ArgumentParser(prog=f"python -m {module}", description=" ".join(doc.split("\n\n")[0].split()))
 
 
-def add_executor_args(parser: argparse.ArgumentParser, what: str) -> None:
-    """``--workers N`` (local processes) and ``--ray [ADDRESS]`` (a Ray cluster) for the items of ``what``."""
-    parser.add_argument("--workers", type=positive_int, default=1, metavar="N", help="local processes (default 1)")
+def add_executor_args(parser: argparse.ArgumentParser, what: str, workers: int = 1) -> None:
+    """``--workers N`` (local processes, default ``workers``) and ``--ray [ADDRESS]`` (a Ray cluster) for the items
+    of ``what``."""
+    parser.add_argument("--workers", type=positive_int, default=workers, metavar="N",
+                        help=f"local processes (default {workers})")
     parser.add_argument("--ray", nargs="?", const="local", default=None, metavar="ADDRESS",
                         help=f"run {what} on a Ray cluster (no address: start one on this machine)")
 

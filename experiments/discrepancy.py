@@ -1,7 +1,7 @@
 """What the simulation gets wrong on a measured log, which effect causes it, and how much the fix predicts.
 
     python -m experiments.discrepancy LOG [LOG ...] --rig RIG.toml [--validate LOG ...] [--json OUT] [--plot DIR]
-                                      [--save-rig OUT.toml] [--workers N | --ray ADDRESS] [--no-replay] [--unwrap]
+                                      [--save-rig OUT.toml] [--workers N | --ray [ADDRESS]] [--no-replay] [--unwrap]
                                       [--max-jitter FRACTION] [--rerun PATH.rrd] [--rerun-spawn]
 
 LOG is a run log (CSV, Parquet or .mat, docs/run_log_format.md); several logs of one rig are fitted together.
@@ -24,11 +24,11 @@ import sys
 from pathlib import Path
 
 from experiments.common import (
+    add_executor_args,
     add_output_args,
     add_rerun_args,
     check_output_paths,
     cli_parser,
-    positive_int,
     record_rerun,
     software_versions,
     write_outputs,
@@ -112,10 +112,7 @@ def main(argv: list[str] | None = None) -> None:
                              "(default 0.05; servo logs with irregular sampling may need more)")
     add_output_args(parser, "write the result as JSON")
     parser.add_argument("--save-rig", type=Path, metavar="TOML", help="write the extended rig (must not exist)")
-    parser.add_argument("--workers", type=positive_int, default=2, help="processes for the candidate fits (default 2)")
-    parser.add_argument("--ray", metavar="ADDRESS",
-                        help="fit the candidates on a Ray cluster ('local': start one here; 'auto'; an address) "
-                             "instead of --workers processes (needs the 'ray' extra)")
+    add_executor_args(parser, "the candidate fits", workers=2)
     parser.add_argument("--no-replay", action="store_true", help="skip the MuJoCo replay of the held-out part")
     add_rerun_args(parser, "the measured log (3D testbed if it has the plant's columns, time series), the "
                            "residuals before and after, and the replay of the held-out part if it ran")

@@ -2,7 +2,8 @@
 them with the paper's (Kp 0.12, Ki 12 1/s) on the step and sine tasks.
 
     python -m experiments.tune [--feedback {sensor,current}] [--damping] [--max-evaluations N] [--gain-margin M]
-                               [--seed N] [--duration S] [--json PATH] [--plot DIR] [--params TOML]
+                               [--workers N] [--ray [ADDRESS]] [--seed N] [--duration S] [--json PATH]
+                               [--plot DIR] [--params TOML]
 
 Controller, per 1 ms tick, on the environment's observation (``envs.torque_tracking``)::
 
@@ -45,6 +46,7 @@ raises Kp. With a single noise realisation per task the optimum is specific to i
 from __future__ import annotations
 
 import math
+import os
 import sys
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -58,8 +60,10 @@ from controllers.tracking import tracking_error
 from envs.torque_tracking import OBSERVATION_NAMES
 from envs.torque_tracking_vector import TorqueTrackingVectorEnv
 from experiments.common import (
+    add_executor_args,
     add_experiment_args,
     cli_parser,
+    executor_from_args,
     load_params_arg,
     positive_int,
     record_rerun,
@@ -67,6 +71,7 @@ from experiments.common import (
     short_run_banner,
     write_outputs,
 )
+from sim.executor import Executor
 from sim.figures import save_figure
 from sim.motor_torque import CurrentToTorqueMap
 from sim.params import TestbedParams
@@ -154,6 +159,28 @@ def run_episodes(vec: TorqueTrackingVectorEnv, runs: list[tuple[Gains, TuneTask,
     return episodes
 
 
+_VECTOR_ENVS: dict[tuple, TorqueTrackingVectorEnv] = {}  # by (process, num_envs, length, params, threads)
+
+
+def run_chunk(setup: tuple[TestbedParams | None, float, str, int], runs: list[tuple[Gains, TuneTask, int]]
+              ) -> list[Episode]:
+    """:func:`run_episodes` of ``runs`` on a vector environment of this process (built once per size): an item
+    of the executor. ``setup`` = (params, episode length [s], feedback, physics threads: 0 every CPU)."""
+    params, duration_s, feedback, nthread = setup
+    # keyed by process: a forked worker inherits the parent's environments but not their threads
+    key = (os.getpid(), len(runs), duration_s, params, nthread)
+    if key not in _VECTOR_ENVS:
+        _VECTOR_ENVS[key] = TorqueTrackingVectorEnv(len(runs), episode_duration_s=duration_s, params=params,
+                                                    nthread=nthread)
+    return run_episodes(_VECTOR_ENVS[key], runs, feedback)
+
+
+def split(runs: list, parts: int) -> list[list]:
+    """``runs`` in at most ``parts`` contiguous chunks of near-equal length, in order."""
+    bounds = np.linspace(0, len(runs), min(parts, len(runs)) + 1).round().astype(int)
+    return [runs[a:b] for a, b in zip(bounds[:-1], bounds[1:], strict=True)]
+
+
 @dataclass(frozen=True)
 class TuneResult:
     """Paper vs tuned gains and each task's RMS errors [N·m] under both."""
@@ -202,7 +229,8 @@ def _scaled(g: Gains, factor: float) -> Gains:
 
 def tune(params: TestbedParams | None = None, feedback: str = "sensor", damping: bool = False,
          duration_s: float = DEFAULT_DURATION_S, max_evaluations: int = DEFAULT_MAX_EVALUATIONS, seed: int = 0,
-         progress: bool = False, gain_margin: float = DEFAULT_GAIN_MARGIN) -> TuneResult:
+         progress: bool = False, gain_margin: float = DEFAULT_GAIN_MARGIN,
+         executor: Executor | None = None) -> TuneResult:
     """Tune the gains (see the module docstring for the problem and the method).
 
     Parameters
@@ -222,13 +250,17 @@ def tune(params: TestbedParams | None = None, feedback: str = "sensor", damping:
     gain_margin : float
         M >= 1: candidates whose gains x M track any task worse than the paper's gains are inadmissible
         (1 switches the check off).
+    executor : Executor, optional
+        Where each evaluation's episodes run, in :meth:`Executor.slots` chunks of one vector environment each
+        (this process if None); the result does not depend on it.
     """
     check_feedback(feedback)
     if max_evaluations < 1:
         raise ValueError(f"max_evaluations = {max_evaluations!r}: valid range [1, inf)")
     if not (math.isfinite(gain_margin) and gain_margin >= 1.0):
         raise ValueError(f"gain_margin = {gain_margin!r}: valid range [1, inf)")
-    vector_envs: dict[int, TorqueTrackingVectorEnv] = {}  # by num_envs
+    executor = executor or Executor(1)
+    setup = (params, duration_s, feedback, 0 if executor.slots == 1 else 1)  # one physics thread per worker
     episodes: dict[Gains, list[Episode]] = {}  # the objective's episodes, reused for the winner's traces
 
     def evaluate(*candidates: Gains) -> None:
@@ -237,9 +269,8 @@ def tune(params: TestbedParams | None = None, feedback: str = "sensor", damping:
         runs = [(g, task, seed + t) for g in new for t, task in enumerate(TUNE_TASKS)]
         if not runs:
             return
-        if len(runs) not in vector_envs:
-            vector_envs[len(runs)] = TorqueTrackingVectorEnv(len(runs), episode_duration_s=duration_s, params=params)
-        done = run_episodes(vector_envs[len(runs)], runs, feedback)
+        chunks = executor.map(run_chunk, split(runs, executor.slots), shared=setup)
+        done = [episode for chunk in chunks for episode in chunk]
         for j, g in enumerate(new):
             episodes[g] = done[j * len(TUNE_TASKS):(j + 1) * len(TUNE_TASKS)]
 
@@ -371,6 +402,7 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--gain-margin", type=float, default=DEFAULT_GAIN_MARGIN, metavar="M",
                         help=f"the tuned gains x M must still track every task as well as the paper's "
                              f"(default {DEFAULT_GAIN_MARGIN:g} = 6 dB; 1 switches the check off)")
+    add_executor_args(parser, "each evaluation's episodes")
     add_experiment_args(parser, feedback=False)
     args = parser.parse_args(argv)
     params = load_params_arg(parser, args)
@@ -378,9 +410,10 @@ def main(argv: list[str] | None = None) -> None:
         parser.error(f"--gain-margin {args.gain_margin}: must be >= 1")
     duration = DEFAULT_DURATION_S if args.duration is None else args.duration
     print(f"tuning on {len(TUNE_TASKS)} tasks x {duration:g} s (progress on stderr) ...", file=sys.stderr)
+    executor = executor_from_args(parser, args)
     with run_errors(parser):
         result = tune(params, args.feedback, args.damping, duration, args.max_evaluations, args.seed, progress=True,
-                      gain_margin=args.gain_margin)
+                      gain_margin=args.gain_margin, executor=executor)
     short_run_banner(args)
     print(format_result(result))
     write_outputs(args, result.to_dict(), lambda directory: plot_tune(result, directory))

@@ -79,6 +79,13 @@ class Executor:
             return f"Ray at {self.ray_address}"
         return "this process" if self.workers == 1 else f"{self.workers} processes"
 
+    @property
+    def slots(self) -> int:
+        """How many items run at once: the local processes, or the Ray cluster's CPUs."""
+        if self._ray is not None:
+            return max(1, int(self._ray.cluster_resources().get("CPU", 1)))
+        return self.workers
+
     def map(self, fn: Callable[[Any, Any], Any], items: Iterable[Any], shared: Any = None) -> list[Any]:
         """``[fn(shared, item) for item in items]``, computed where the executor runs, in the items' order."""
         items = list(items)

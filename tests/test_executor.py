@@ -50,9 +50,14 @@ def test_a_bad_worker_count_names_its_range(workers):
 
 
 def test_a_ray_cluster_gives_the_same_results_as_local_processes():
-    pytest.importorskip("ray")
     seeds = list(range(8))
-    assert Executor(ray="local").map(noisy_mean, seeds, shared=2.0) == Executor(2).map(noisy_mean, seeds, shared=2.0)
+    cluster = Executor(ray="local")
+    assert cluster.map(noisy_mean, seeds, shared=2.0) == Executor(2).map(noisy_mean, seeds, shared=2.0)
+    assert cluster.slots == os.cpu_count()  # the one-machine cluster offers this machine's CPUs
+
+
+def test_slots_are_the_local_processes():
+    assert (Executor(1).slots, Executor(3).slots) == (1, 3)
 
 
 def blas_thread_counts(shared, item) -> list[int]:
@@ -61,7 +66,8 @@ def blas_thread_counts(shared, item) -> list[int]:
     return [i["num_threads"] for i in threadpoolctl.threadpool_info() if i["user_api"] == "blas"]
 
 
-@pytest.mark.parametrize("executor", [lambda: Executor(1), lambda: Executor(2)], ids=["this process", "2 processes"])
+@pytest.mark.parametrize("executor", [lambda: Executor(1), lambda: Executor(2), lambda: Executor(ray="local")],
+                         ids=["this process", "2 processes", "a local Ray cluster"])
 def test_every_item_runs_with_one_blas_thread_wherever_it_runs(executor):
     """One BLAS thread per item: Ray's workers have one, and a linear-algebra result can differ in its last bits
     with the thread count."""

@@ -8,7 +8,8 @@ import pytest
 
 from envs.torque_tracking import OBSERVATION_NAMES, TorqueTrackingEnv
 from envs.torque_tracking_vector import TorqueTrackingVectorEnv
-from experiments.tune import DEFAULT_GAIN_MARGIN, PAPER_GAINS, TUNE_TASKS, Gains, main, run_episodes, tune
+from experiments.tune import DEFAULT_GAIN_MARGIN, PAPER_GAINS, TUNE_TASKS, Gains, main, run_episodes, split, tune
+from sim.executor import Executor
 
 
 def test_tuned_gains_are_no_worse_than_the_papers_on_every_task_and_repeat():
@@ -23,6 +24,21 @@ def test_tuned_gains_are_no_worse_than_the_papers_on_every_task_and_repeat():
     assert (a.tuned, a.tuned_rms_nm) == (b.tuned, b.tuned_rms_nm)
     assert a.gain_margin == DEFAULT_GAIN_MARGIN
     assert all(m <= p for m, p in zip(a.margin_rms_nm, a.paper_rms_nm, strict=True))
+
+
+def test_tuning_on_two_processes_gives_what_one_process_gives():
+    """Each evaluation's episodes split over two local processes: the same gains, errors and margin errors."""
+    one = tune(duration_s=0.15, max_evaluations=4)
+    two = tune(duration_s=0.15, max_evaluations=4, executor=Executor(2))
+    assert (two.tuned, two.tuned_rms_nm, two.margin_rms_nm) == (one.tuned, one.tuned_rms_nm, one.margin_rms_nm)
+    assert two.evaluations == one.evaluations
+
+
+def test_split_keeps_every_run_in_order_in_at_most_the_asked_chunks():
+    runs = list(range(7))
+    assert split(runs, 2) == [[0, 1, 2, 3], [4, 5, 6]]
+    assert [r for chunk in split(runs, 3) for r in chunk] == runs and len(split(runs, 3)) == 3
+    assert split(runs[:2], 8) == [[0], [1]]
 
 
 def test_gains_near_instability_fail_the_gain_margin_check():

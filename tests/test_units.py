@@ -105,7 +105,6 @@ def test_two_units_give_the_same_result_in_process_and_on_two_processes(two_unit
 
 
 def test_two_units_give_the_same_result_on_a_local_ray_cluster(two_units_in_process):
-    pytest.importorskip("ray")
     assert run_units(units=2, seed=0, executor=Executor(ray="local")) == two_units_in_process
 
 

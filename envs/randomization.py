@@ -1,9 +1,9 @@
 """Domain randomisation of the testbed's plant and sensor parameters within their documented ranges.
 
 Each field of :data:`RANDOMIZED_FIELDS` is multiplied by a factor drawn uniformly in [1 - s, 1 + s]
-(``s`` = ``scale``) and clipped to the field's valid range in :mod:`sim.params`. The noise limits of the
-photo-reflectors share one factor (their order is kept); the Coulomb friction is clipped to the breakaway
-torque (the parameter set's cross-check).
+(``s`` = ``scale``) and clipped to the field's valid range in :mod:`sim.params`. The photo-reflectors' noise
+limits share one factor, as do their temperature coefficients' limits (their order is kept); the Coulomb friction
+is clipped to the breakaway torque (the parameter set's cross-check).
 
 Chosen subset, and why: the quantities that vary from one actuator or sensor to the next and that a torque
 controller has to be robust to (gear friction levels, efficiency, current-to-torque droop, current-loop lag,
@@ -31,10 +31,11 @@ RANDOMIZED_FIELDS: tuple[tuple[str, str], ...] = (
     ("motor", "command_delay_s"),
     ("backlash", "width_rad"),
     ("photoreflector", "noise_min_v"),  # with noise_max_v: one factor for both
-    ("photoreflector", "optical_tempco_per_k"),
+    ("photoreflector", "optical_tempco_min_per_k"),  # with optical_tempco_max_per_k: one factor for both
     ("photoreflector", "bandwidth_hz"),
 )
-_SHARED_FACTOR = {("photoreflector", "noise_max_v"): ("photoreflector", "noise_min_v")}
+_SHARED_FACTOR = {("photoreflector", "noise_max_v"): ("photoreflector", "noise_min_v"),
+                  ("photoreflector", "optical_tempco_max_per_k"): ("photoreflector", "optical_tempco_min_per_k")}
 
 
 def check_scale(scale: float) -> None:

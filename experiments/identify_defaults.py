@@ -119,7 +119,7 @@ DRIVETRAIN = ("friction.coulomb_torque_nm", "friction.load_friction_coefficient"
               "motor.current_loop_time_constant_s", "loadcell.amplifier_bandwidth_hz")
 SENSOR = ("photoreflector.quadratic_fraction_max", "photoreflector.noise_min_v", "photoreflector.noise_max_v",
           "photoreflector.slip_fraction_min", "photoreflector.slip_fraction_max", "photoreflector.crosstalk_spread",
-          "photoreflector.optical_tempco_per_k", "photoreflector.optical_tempco_spread_per_k")
+          "photoreflector.optical_tempco_min_per_k", "photoreflector.optical_tempco_max_per_k")
 PARTS = {"drivetrain": DRIVETRAIN, "sensor": SENSOR, "joint": DRIVETRAIN + SENSOR}
 # The sensor part's experiments by case kind, each its own figure group.
 SENSOR_CASES = {"calibration": run_calibration, "thermal": run_thermal}

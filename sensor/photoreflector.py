@@ -71,7 +71,7 @@ def draw_unit(params: TestbedParams) -> SensorUnit:
     order = rng.permutation(CHANNELS)  # drawn whatever the levels, so noiseless units keep every other draw
     noise = levels[order] if pr.noise_max_v > 0 else np.zeros(CHANNELS)
     cross = pr.crosstalk_v_per_nm * (1.0 + pr.crosstalk_spread * rng.uniform(-1.0, 1.0, CHANNELS))
-    tempco = pr.optical_tempco_per_k + pr.optical_tempco_spread_per_k * rng.uniform(-1.0, 1.0, CHANNELS)
+    tempco = rng.uniform(pr.optical_tempco_min_per_k, pr.optical_tempco_max_per_k, CHANNELS)
     return SensorUnit(
         signs=np.tile([1.0, -1.0], CHANNELS // 2),
         angles_rad=np.repeat(np.arange(CHANNELS // 2) * (math.pi / 2), 2),

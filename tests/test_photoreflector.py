@@ -144,7 +144,8 @@ def test_a_common_coefficient_gives_a_linear_calibration_a_zero_and_a_gain_drift
     reads τ̂ − τ = (g − 1)·(τ − c0): a zero drift −(g − 1)·c0 and a gain drift (g − 1)·τ."""
     p = P.replace(photoreflector={"noise_min_v": 0.0, "noise_max_v": 0.0, "quadratic_fraction_max": 0.0,
                                   "cubic_fraction_max": 0.0, "quartic_fraction_max": 0.0, "slip_fraction_min": 0.0,
-                                  "slip_fraction_max": 0.0, "optical_tempco_spread_per_k": 0.0})
+                                  "slip_fraction_max": 0.0, "optical_tempco_min_per_k": -1.6e-3,
+                                  "optical_tempco_max_per_k": -1.6e-3})
     sensor = PhotoReflectorArray(p)
     tau = np.linspace(-25.0, 25.0, 51)
     v = sensor.ideal_voltages(twist(tau))
@@ -154,7 +155,7 @@ def test_a_common_coefficient_gives_a_linear_calibration_a_zero_and_a_gain_drift
     assert v @ coef + c0 == pytest.approx(tau, abs=1e-9)  # exact at the reference temperature
     t = np.full(tau.size, p.photoreflector.reference_temperature_c + delta_t_k)
     warm = sensor.ideal_voltages(twist(tau), temperature_c=t) @ coef + c0
-    g = np.exp(p.photoreflector.optical_tempco_per_k * delta_t_k)
+    g = np.exp(-1.6e-3 * delta_t_k)
     assert abs(c0) > 1.0  # the operating points reach the output: the zero drift is not trivially nil
     assert warm - tau == pytest.approx((g - 1.0) * (tau - c0), abs=1e-9)
 

@@ -6,7 +6,8 @@ Simulates the calibration rig (test weights to ±25 N·m five times each way, th
 fits LS and the paper's QP, evaluates the QP calibration on a second session of the same protocols, and
 prints every figure beside the paper's, then the alternative readings of Tables III-IV the paper's text allows
 (:data:`ALTERNATIVE_FIGURES`: the 50 N·m span as full scale, the max error on hold means, the crosstalk relative to
-the applied moment) as rows of their own. Figures: ``calibration_channels.png`` (paper Fig. 6),
+the applied moment and under a calibration that did not see the moment records) as rows of their own. Figures:
+``calibration_channels.png`` (paper Fig. 6),
 ``calibration_nonlinearity.png`` (Fig. 7: nonlinearity and hysteresis, the curves whose peaks are Table III's),
 ``calibration_crosstalk_noise.png`` (Fig. 8(b)-(f): crosstalk, channel voltages under T_x / T_y, LS and QP noise).
 """
@@ -140,6 +141,10 @@ ALTERNATIVE_FIGURES: tuple[tuple[str, str, str, str, float, str], ...] = (
        _nm_of(f"crosstalk_t{axis}_pct_fs", CROSSTALK_MOMENT_NM),
        "Crosstalk is commonly given relative to the applied off-axis moment, and the paper names no full scale "
        "for it beyond its general FS sentence.")
+      for axis in "xy"),
+    *((f"crosstalk_t{axis}_tz_only_pct_fs", "IV", f"crosstalk T_{axis}, calibrated on the T_z loading record alone",
+       "% FS", paper_value(f"crosstalk_t{axis}_pct_fs"),
+       "The paper does not say whether its calibration data included the T_x / T_y moment records.")
       for axis in "xy"),
 )
 

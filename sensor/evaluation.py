@@ -24,6 +24,7 @@ from sensor.calibration import (
     MIN_QUIET_SAMPLES,
     Calibration,
     GammaSelection,
+    InfeasibleCalibrationError,
     fit_least_squares,
     quiet_segment_mask,
     select_gamma,
@@ -248,6 +249,21 @@ def _calibrated(run, fs_nm: float) -> tuple[RigRecord, RigCalibration]:
     return cal_rec, calibrate(cal_rec, moments, fs_nm=fs_nm)
 
 
+def _tz_only_crosstalk_pct_fs(cal_rec: RigRecord, moment_records: dict[str, RigRecord],
+                              fs_nm: float) -> dict[str, float]:
+    """Crosstalk [% FS] of a QP calibration fitted on the T_z loading record alone (no moment records), on the
+    moment tests of ``moment_records`` (axis -> record); NaN where no such calibration meets the error bound."""
+    try:
+        qp = select_gamma(cal_rec.voltages_v, cal_rec.tau_reference_nm,
+                          quiet_mask=leading_quiet_segment(cal_rec.tau_reference_nm),
+                          lambda_weight=RESOLUTION_LAMBDA_WEIGHT, e_max_nm=E_MAX_FRACTION_FS * fs_nm,
+                          fs_nm=fs_nm).calibration
+    except InfeasibleCalibrationError:
+        return {axis: float("nan") for axis in moment_records}
+    return {axis: metrics.crosstalk(qp.predict(r.voltages_v), tare_mask=r.schedule.branch == 0,
+                                    fs_nm=fs_nm).crosstalk_pct_fs for axis, r in moment_records.items()}
+
+
 def improvement_ratio(ls_std_nm: float, qp_std_nm: float) -> float:
     """The QP's resolution gain over LS, ``ls_std / qp_std`` [1]; NaN where it is undefined (a QP std of 0,
     as a noise-free sensor gives)."""
@@ -293,6 +309,7 @@ def evaluate_sensor(params: TestbedParams | None = None, seed: int = 0) -> Senso
     xt = {axis: run(f"crosstalk_{axis}", lambda dt, a=axis: crosstalk_schedule(dt, a)) for axis in ("x", "y")}
     cross = {axis: metrics.crosstalk(qp.predict(r.voltages_v), tare_mask=r.schedule.branch == 0, fs_nm=fs)
              for axis, r in xt.items()}
+    cross_tz_only = _tz_only_crosstalk_pct_fs(cal_rec, xt, fs)
     res_rec = run("resolution", resolution_schedule)
     res_ls = metrics.resolution_3sigma(ls.predict(res_rec.voltages_v))
     res_qp = metrics.resolution_3sigma(qp.predict(res_rec.voltages_v))
@@ -317,5 +334,7 @@ def evaluate_sensor(params: TestbedParams | None = None, seed: int = 0) -> Senso
         "repeatability_nm": (repeatability.max_spread_nm, "N·m"),
         "crosstalk_tx_nm": (cross["x"].max_apparent_torque_nm, "N·m"),
         "crosstalk_ty_nm": (cross["y"].max_apparent_torque_nm, "N·m"),
+        "crosstalk_tx_tz_only_pct_fs": (cross_tz_only["x"], "% FS"),
+        "crosstalk_ty_tz_only_pct_fs": (cross_tz_only["y"], "% FS"),
     }
     return SensorEvaluation(ls, qp, selection, figures, cal_rec, ev, xt, res_rec)

@@ -10,9 +10,7 @@ below the paper's 0.148 / 0.126 % FS).
 import numpy as np
 import pytest
 
-from sensor import metrics
-from sensor.calibration import select_gamma
-from sensor.evaluation import RESOLUTION_LAMBDA_WEIGHT, evaluate_sensor, leading_quiet_segment
+from sensor.evaluation import evaluate_sensor
 from sensor.photoreflector import PhotoReflectorArray
 from sensor.protocol import Schedule, record
 from sim.params import TestbedParams
@@ -76,12 +74,8 @@ def test_the_tilt_residual_the_qp_leaves_grows_with_channel_noise(evaluations):
 @pytest.mark.parametrize("axis", ["x", "y"])
 def test_a_tz_only_calibration_leaves_the_tilt_response_uncancelled(evaluations, axis):
     """Fitted on the T_z loading record alone, the QP's unequal channel weights do not cancel the ~60 mV tilt
-    response: the crosstalk exceeds the paper's figure (which is why the moment records are calibration data)."""
-    ev = evaluations[0]
-    cal = ev.calibration_record
-    qp_tz_only = select_gamma(cal.voltages_v, cal.tau_reference_nm,
-                              quiet_mask=leading_quiet_segment(cal.tau_reference_nm),
-                              lambda_weight=RESOLUTION_LAMBDA_WEIGHT).calibration
-    rec = ev.crosstalk_records[axis]
-    xt = metrics.crosstalk(qp_tz_only.predict(rec.voltages_v), tare_mask=rec.schedule.branch == 0)
-    assert xt.crosstalk_pct_fs > PAPER_CROSSTALK_PCT_FS[axis]
+    response: the crosstalk (the alternative reading's figure) exceeds the paper's, and more than triples the
+    crosstalk of the calibration that saw the moment records."""
+    figures = evaluations[0].figures
+    tz_only, with_moments = figures[f"crosstalk_t{axis}_tz_only_pct_fs"][0], figures[f"crosstalk_t{axis}_pct_fs"][0]
+    assert tz_only > PAPER_CROSSTALK_PCT_FS[axis] and tz_only > 3.0 * with_moments

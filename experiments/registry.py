@@ -95,6 +95,7 @@ COMMANDS: dict[str, str] = {
     "calibration": "the calibration rig: LS against QP, Tables III-IV",
     "thermal": "the temperature chamber and the one-hour drift tests, Table V",
     "units": "the sensor's Tables III-V figures over manufactured units: their spread, the paper's percentile",
+    "qp_gain": "the QP calibration's resolution gain over LS across random sensor parameter sets",
     "tune": "PI gains tuned on the Gymnasium environment, against the paper's",
     "discrepancy": "what the simulation gets wrong about a measured log, why, and how much a better model gains",
     "discrepancy_demo": "a synthetic log with one effect hidden, to try the discrepancy analysis on",

@@ -125,8 +125,8 @@ class GearFrictionParams:
         0.00788, "N·m·s/rad", "identified: output-side viscous friction of grease and bearings; "
         "experiments.identify_defaults "
         "within the bound below (models/gim8108_testbed/identification.md)", 0.0, INF,
-        bound=(0.005, 0.08), bound_source="assumed: 0.25-4x the default; neither the paper nor the vendor gives a "
-        "viscous coefficient")
+        bound=(0.005, 0.08), bound_source="assumed: 0.25-4x 0.02 N·m·s/rad, a grease-lubricated stage's estimate; "
+        "neither the paper nor the vendor gives a viscous coefficient")
     output_viscous_share: float = quantity(
         0.1, "1", "assumed: share of viscous_nms_per_rad acting on the output flange and hub (output bearing and "
         "seal), on the output side of the backlash dead band; it damps the free output inside the gap "

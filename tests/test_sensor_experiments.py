@@ -29,7 +29,7 @@ def test_qp_resolution_gain_over_ls_holds_across_seeds_and_units(seed):
 @pytest.mark.parametrize("draw", range(20))
 def test_qp_resolution_gain_holds_for_random_sensor_parameter_sets(draw):
     """Sensor parameter sets drawn at random within their source bounds (``experiments.qp_gain.random_sensor``,
-    draws 0-19 of ``--seed 500``) keep LS std / QP std >= 1.5 (measured 1.59-7.09 over these 20). Not a proof
+    draws 0-19 of ``--seed 500``) keep LS std / QP std >= 1.5 (measured 1.60-7.04 over these 20). Not a proof
     for the whole box: ``python -m experiments.qp_gain`` gives the share below (docs/fidelity.md)."""
     assert run_draw(500, draw).gain >= MIN_QP_GAIN
 

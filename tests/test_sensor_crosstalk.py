@@ -66,7 +66,7 @@ def test_crosstalk_is_nonzero_stable_across_seeds_and_made_of_noise(evaluations,
 
 def test_the_tilt_residual_the_qp_leaves_grows_with_channel_noise(evaluations):
     """The QP trades the tilt response's null against noise: with the noisiest channel at 0.96 mV instead of the
-    default 2.4 mV the held-level residual falls more than twofold (measured 0.0062 against 0.0204 N·m)."""
+    default 2.4 mV the held-level residual falls more than twofold (measured 0.0063 against 0.0208 N·m)."""
     quieter = evaluate_sensor(TestbedParams().replace(photoreflector={"noise_max_v": 9.6e-4}), seed=0)
     assert _held_level_residual(evaluations[0], "x") > 2.0 * _held_level_residual(quieter, "x")
 

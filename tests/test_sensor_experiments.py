@@ -55,7 +55,7 @@ def test_the_monte_carlo_is_the_same_on_two_processes_and_draws_within_the_sourc
 @pytest.mark.parametrize("seed", range(3))
 def test_qp_resolution_gain_survives_equal_channel_noise(seed):
     """All eight channels equally noisy (0.5 mV), default slip fractions: the QP still gains >= 1.5x over LS
-    (measured 2.6-3.2x over units 1000-1005, seeds 0-5): unequal channel noise is not what makes the gain."""
+    (measured 2.6-3.3x over units 1000-1005, seeds 0-5): unequal channel noise is not what makes the gain."""
     params = TestbedParams().replace(photoreflector={"unit_seed": 1000 + seed, "noise_min_v": 5e-4,
                                                      "noise_max_v": 5e-4})
     ls_std, qp_std = resolution_gain(params, seed)

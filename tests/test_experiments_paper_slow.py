@@ -29,10 +29,10 @@ OUT_OF_BAND = {
     "0.1 N·m square 1 Hz, current feedback: peak error": 0.413,
     # friction at reversals under load and the sensor's error at 10 N·m: the paper's 10 N·m error sits at the
     # crests (peak / RMS 2.8), ours is spread (0.4) (docs/fidelity.md).
-    "0.05 N·m sine 0.2 Hz, sensor feedback: peak error": 1.927,
-    "0.1 N·m square 1 Hz, sensor feedback: peak error": 1.555,
-    "10 N·m sine 0.2 Hz, sensor feedback: RMS error": 1.849,
-    "10 N·m sine 0.2 Hz, sensor feedback: peak error": 0.269,
+    "0.05 N·m sine 0.2 Hz, sensor feedback: peak error": 1.972,
+    "0.1 N·m square 1 Hz, sensor feedback: peak error": 1.530,
+    "10 N·m sine 0.2 Hz, sensor feedback: RMS error": 1.846,
+    "10 N·m sine 0.2 Hz, sensor feedback: peak error": 0.273,
 }
 # Sec. IV behaviours not reproduced: the current-feedback square's output moves both ways (55 % of its impulse
 # positive) at 14 % of the reference's level, short of the 25 % an actuating output needs.

@@ -169,6 +169,8 @@ def run_chunk(setup: tuple[TestbedParams | None, float, str, int], runs: list[tu
     params, duration_s, feedback, nthread = setup
     # keyed by process: a forked worker inherits the parent's environments but not their threads
     key = (os.getpid(), len(runs), duration_s, params, nthread)
+    for stale in [k for k in _VECTOR_ENVS if k[0] == key[0] and k[2:] != key[2:]]:  # another tuning run's
+        _VECTOR_ENVS.pop(stale).close()
     if key not in _VECTOR_ENVS:
         _VECTOR_ENVS[key] = TorqueTrackingVectorEnv(len(runs), episode_duration_s=duration_s, params=params,
                                                     nthread=nthread)

@@ -72,6 +72,17 @@ def test_compiled_model_values_equal_the_parameter_set(fixture):
     assert k_tendon == pytest.approx(expected, rel=1e-8)
 
 
+@pytest.mark.parametrize("rotor_inertia", [7.573946921575264e-05, 6.3e-5, 1e-4])
+def test_the_model_compiles_for_any_rotor_inertia_however_its_digits_round(rotor_inertia):
+    """A body spinning about z has transverse inertias half its axial one. Both written to 9 digits, 2 x 2.42366301e-3
+    is below 4.84732603e-3 (rotor inertia 7.5739e-5 kg·m²), which MuJoCo refuses (A + B >= C)."""
+    p = P.replace(motor={"rotor_inertia_kgm2": rotor_inertia})
+    for fixture in FIXTURES:
+        m = mujoco.MjModel.from_xml_string(build_xml(p, fixture))
+        a, b, c = m.body("rotor").inertia
+        assert a + b >= c and c == pytest.approx(derive(p).reflected_rotor_inertia_kgm2, rel=1e-8)
+
+
 @pytest.mark.parametrize("fixture", FIXTURES)
 def test_reference_xml_files_are_current(fixture):
     """models/gim8108_testbed/testbed_<fixture>.xml is what the builder makes of the default parameters."""

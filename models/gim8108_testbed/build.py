@@ -35,6 +35,14 @@ def _f(x: float) -> str:
     return f"{x:.9g}"
 
 
+def _axisymmetric(axial: float) -> str:
+    """``diaginertia`` of a body spinning about z, thin-disc-like: the transverse values half the axial one as
+    written (``_f``), in full precision, so that MuJoCo's A + B >= C holds whatever the rounding of C."""
+    c = _f(axial)
+    half = repr(float(c) / 2.0)
+    return f"{half} {half} {c}"
+
+
 def _longest_step_s(p: TestbedParams, fixtures) -> float:
     """The longest physics step [s] of the accurate rule over ``fixtures`` (whatever simulation.substeps_rule)."""
     return max(physics_timestep(p, fixture, "accurate")[0] for fixture in fixtures)
@@ -181,12 +189,12 @@ def build_xml(p: TestbedParams, fixture: str, nsample: int | None = None) -> str
                solreffriction="{_f(solref_s["friction", "load_friction_time_constant_s"])} 1"
                solimpfriction="{_f(fr.load_friction_impedance)} {_f(fr.load_friction_impedance)} 0.001 0.5 2"/>
         <inertial pos="0 0 0" mass="{_f(p.motor.rotor_mass_kg)}"
-                  diaginertia="{_f(0.5 * d.reflected_rotor_inertia_kgm2)} {_f(0.5 * d.reflected_rotor_inertia_kgm2)} {_f(d.reflected_rotor_inertia_kgm2)}"/>
+                  diaginertia="{_axisymmetric(d.reflected_rotor_inertia_kgm2)}"/>
         <body name="output">
           <joint name="backlash" class="backlash_stop" type="hinge" axis="0 0 1" limited="true"
                  range="{_f(-half_gap)} {_f(half_gap)}"/>
           <inertial pos="0 0 0" mass="{_f(p.flange.mass_kg + d.hub_mass_kg)}"
-                    diaginertia="{_f(0.5 * d.output_inertia_kgm2)} {_f(0.5 * d.output_inertia_kgm2)} {_f(d.output_inertia_kgm2)}"/>
+                    diaginertia="{_axisymmetric(d.output_inertia_kgm2)}"/>
           <geom class="visual" type="cylinder" size="{_f(fl.inner_radius_m)} {_f(0.5 * fl.beam_height_m)}"
                 pos="0 0 {_f(0.5 * fl.beam_height_m)}" rgba=".8 .8 .85 1"/>
           <body name="lever">

@@ -254,7 +254,8 @@ def tune(params: TestbedParams | None = None, feedback: str = "sensor", damping:
         (1 switches the check off).
     executor : Executor, optional
         Where each evaluation's episodes run, in :meth:`Executor.slots` chunks of one vector environment each
-        (this process if None); the result does not depend on it.
+        (this process if None, its environment's threads on every core); the result does not depend on it. On one
+        machine this process is the fastest (benchmarks/README.md); the executor is for a Ray cluster.
     """
     check_feedback(feedback)
     if max_evaluations < 1:

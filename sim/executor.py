@@ -68,7 +68,7 @@ class Executor:
                 raise RuntimeError(f"a Ray cluster was asked for (ray = {ray!r}) but Ray is not installed: "
                                    f"{RAY_EXTRA}") from exc
             if not ray_module.is_initialized():
-                ray_module.init(address=None if ray == "local" else ray, ignore_reinit_error=True,
+                ray_module.init(address=ray, ignore_reinit_error=True,
                                 log_to_driver=False, include_dashboard=False)
             self._ray = ray_module
 

@@ -1,6 +1,9 @@
 """The one parallel executor: same results in the items' order wherever the items run."""
 
 import os
+import subprocess
+import sys
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -54,6 +57,18 @@ def test_a_ray_cluster_gives_the_same_results_as_local_processes():
     cluster = Executor(ray="local")
     assert cluster.map(noisy_mean, seeds, shared=2.0) == Executor(2).map(noisy_mean, seeds, shared=2.0)
     assert cluster.slots == os.cpu_count()  # the one-machine cluster offers this machine's CPUs
+
+
+def test_a_local_ray_cluster_is_started_here_whatever_ray_address_names():
+    """``ray="local"`` starts a cluster on this machine even where RAY_ADDRESS names another (which ray.init()
+    without an address would try to join)."""
+    code = ("from sim.executor import Executor; "
+            "print(Executor(ray='local').map(lambda shared, item: item + shared, [1, 2], shared=10))")
+    env = {**os.environ, "RAY_ADDRESS": "127.0.0.1:1"}
+    done = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, timeout=120,
+                          cwd=Path(__file__).resolve().parents[1])
+    assert done.returncode == 0, done.stderr[-2000:]
+    assert done.stdout.strip().splitlines()[-1] == "[11, 12]"
 
 
 def test_slots_are_the_local_processes():

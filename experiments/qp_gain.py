@@ -41,7 +41,8 @@ from sim.params import TestbedParams, source_bound
 DEFAULT_DRAWS = 500
 DEFAULT_SEED = 600
 MIN_GAIN = 1.5  # [1] the gain the tests require of the default unit and of random draws (paper: 2.14)
-SMALLER_SENSITIVITY_BELOW_V_PER_M = 1300.0  # [V/m] leaves the larger sensitivity room, >= 200 V/m above it
+SMALLER_SENSITIVITY_BELOW_V_PER_M = 1300.0  # [V/m] leaves the larger sensitivity room above it
+SENSITIVITY_GAP_V_PER_M = 200.0  # [V/m] the larger sensitivity's least distance above the smaller
 SLIP_BINS = (0.010, 0.018)  # [1] the largest slip fraction's bins: below 1 %, 1-1.8 %, from 1.8 %
 
 
@@ -49,10 +50,11 @@ def random_sensor(rng: np.random.Generator) -> TestbedParams:
     """A photo-reflector parameter set drawn uniformly within the source bounds of sim/params.py.
 
     Sensitivities within the paper's 0.024-0.04 V/(N·m) (the smaller below
-    :data:`SMALLER_SENSITIVITY_BELOW_V_PER_M`, the larger at least 200 V/m above it); the quietest channel's
-    noise in its bound and a noise spread of 1-6x (equal noise included); the smallest slip fraction in its
-    bound and the largest 2-4x that; the curvature of a 1/d² reflector (quadratic, cubic and quartic each in its
-    bound); the tilt response's spread in its bound; a unit seed. Every other parameter keeps its default.
+    :data:`SMALLER_SENSITIVITY_BELOW_V_PER_M`, the larger at least :data:`SENSITIVITY_GAP_V_PER_M` above it); the
+    quietest channel's noise in its bound and a noise spread of 1-6x (equal noise included); the smallest slip
+    fraction in its bound and the largest 2-4x that; the curvature of a 1/d² reflector (quadratic, cubic and
+    quartic each in its bound); the tilt response's spread in its bound; a unit seed. Every other parameter keeps
+    its default.
     """
     pr = "photoreflector."
     s_lo, s_hi = source_bound(pr + "sensitivity_min_v_per_m")
@@ -61,7 +63,8 @@ def random_sensor(rng: np.random.Generator) -> TestbedParams:
     slip_lo = rng.uniform(*source_bound(pr + "slip_fraction_min"))
     return TestbedParams().replace(photoreflector={
         "unit_seed": int(rng.integers(0, 2**31 - 1)),
-        "sensitivity_min_v_per_m": lo_sens, "sensitivity_max_v_per_m": rng.uniform(lo_sens + 200.0, s_hi),
+        "sensitivity_min_v_per_m": lo_sens,
+        "sensitivity_max_v_per_m": rng.uniform(lo_sens + SENSITIVITY_GAP_V_PER_M, s_hi),
         "noise_min_v": noise_lo, "noise_max_v": noise_lo * rng.uniform(1.0, 6.0),
         "slip_fraction_min": slip_lo, "slip_fraction_max": slip_lo * rng.uniform(2.0, 4.0),
         "quadratic_fraction_max": rng.uniform(*source_bound(pr + "quadratic_fraction_max")),

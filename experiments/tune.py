@@ -263,7 +263,8 @@ def tune(params: TestbedParams | None = None, feedback: str = "sensor", damping:
     if not (math.isfinite(gain_margin) and gain_margin >= 1.0):
         raise ValueError(f"gain_margin = {gain_margin!r}: valid range [1, inf)")
     executor = executor or Executor(1)
-    setup = (params, duration_s, feedback, 0 if executor.slots == 1 else 1)  # one physics thread per worker
+    slots = executor.slots
+    setup = (params, duration_s, feedback, 0 if slots == 1 else 1)  # one physics thread per worker
     episodes: dict[Gains, list[Episode]] = {}  # the objective's episodes, reused for the winner's traces
 
     def evaluate(*candidates: Gains) -> None:
@@ -272,7 +273,7 @@ def tune(params: TestbedParams | None = None, feedback: str = "sensor", damping:
         runs = [(g, task, seed + t) for g in new for t, task in enumerate(TUNE_TASKS)]
         if not runs:
             return
-        chunks = executor.map(run_chunk, split(runs, executor.slots), shared=setup)
+        chunks = executor.map(run_chunk, split(runs, slots), shared=setup)
         done = [episode for chunk in chunks for episode in chunk]
         for j, g in enumerate(new):
             episodes[g] = done[j * len(TUNE_TASKS):(j + 1) * len(TUNE_TASKS)]

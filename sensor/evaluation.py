@@ -249,19 +249,23 @@ def _calibrated(run, fs_nm: float) -> tuple[RigRecord, RigCalibration]:
     return cal_rec, calibrate(cal_rec, moments, fs_nm=fs_nm)
 
 
+def _crosstalk(calibration: Calibration, moment_records: dict[str, RigRecord],
+               fs_nm: float) -> dict[str, metrics.CrosstalkResult]:
+    """Crosstalk of ``calibration`` on each moment test of ``moment_records`` (axis -> record), tared on its
+    no-load start."""
+    return {axis: metrics.crosstalk(calibration.predict(r.voltages_v), tare_mask=r.schedule.branch == 0, fs_nm=fs_nm)
+            for axis, r in moment_records.items()}
+
+
 def _tz_only_crosstalk_pct_fs(cal_rec: RigRecord, moment_records: dict[str, RigRecord],
                               fs_nm: float) -> dict[str, float]:
-    """Crosstalk [% FS] of a QP calibration fitted on the T_z loading record alone (no moment records), on the
-    moment tests of ``moment_records`` (axis -> record); NaN where no such calibration meets the error bound."""
+    """Crosstalk [% FS] of the QP calibration fitted on the T_z loading record alone (no moment records); NaN
+    where no such calibration meets the error bound."""
     try:
-        qp = select_gamma(cal_rec.voltages_v, cal_rec.tau_reference_nm,
-                          quiet_mask=leading_quiet_segment(cal_rec.tau_reference_nm),
-                          lambda_weight=RESOLUTION_LAMBDA_WEIGHT, e_max_nm=E_MAX_FRACTION_FS * fs_nm,
-                          fs_nm=fs_nm).calibration
+        qp = calibrate(cal_rec, [], fs_nm=fs_nm).qp
     except InfeasibleCalibrationError:
         return {axis: float("nan") for axis in moment_records}
-    return {axis: metrics.crosstalk(qp.predict(r.voltages_v), tare_mask=r.schedule.branch == 0,
-                                    fs_nm=fs_nm).crosstalk_pct_fs for axis, r in moment_records.items()}
+    return {axis: c.crosstalk_pct_fs for axis, c in _crosstalk(qp, moment_records, fs_nm).items()}
 
 
 def improvement_ratio(ls_std_nm: float, qp_std_nm: float) -> float:
@@ -307,8 +311,7 @@ def evaluate_sensor(params: TestbedParams | None = None, seed: int = 0) -> Senso
     hysteresis = metrics.hysteresis(ref, out, direction, fs_nm=fs)
     repeatability = _repeatability_per_series(ref, out, m.cycle, direction, fs)
     xt = {axis: run(f"crosstalk_{axis}", lambda dt, a=axis: crosstalk_schedule(dt, a)) for axis in ("x", "y")}
-    cross = {axis: metrics.crosstalk(qp.predict(r.voltages_v), tare_mask=r.schedule.branch == 0, fs_nm=fs)
-             for axis, r in xt.items()}
+    cross = _crosstalk(qp, xt, fs)
     cross_tz_only = _tz_only_crosstalk_pct_fs(cal_rec, xt, fs)
     res_rec = run("resolution", resolution_schedule)
     res_ls = metrics.resolution_3sigma(ls.predict(res_rec.voltages_v))

@@ -11,9 +11,11 @@ Steps (``analyse``):
 4. forward selection (:mod:`sim.discrepancy.selection`): each round judges every remaining candidate, fitted
    jointly with everything accepted so far, against the current model; the best that passes every rule is
    accepted, until none does;
-5. what the final residual still holds (:mod:`sim.discrepancy.structure`), the relative effort prediction
-   error of the baseline and the final model on every log, the extended rig, and optionally a windowed MuJoCo
-   replay of the held-out part before and after.
+5. the final model (:func:`final_model`): the confident findings re-fitted alone, written as the extended rig
+   and read back on the logs as an analysis of it begins, so that every final figure is the saved rig's; what its
+   residual still holds (:mod:`sim.discrepancy.structure`), the relative effort prediction error of the baseline
+   and the final model on every log, and optionally a windowed MuJoCo replay of the held-out part before and
+   after.
 """
 
 from __future__ import annotations
@@ -21,6 +23,8 @@ from __future__ import annotations
 import math
 import sys
 import time
+import tomllib
+from collections.abc import Callable
 from dataclasses import dataclass, field, replace
 from typing import Any
 
@@ -35,16 +39,17 @@ from sim.discrepancy.checks import (
     to_hold_end,
 )
 from sim.discrepancy.effects import EFFECTS, rig_kind
-from sim.discrepancy.fit import fit_keys
+from sim.discrepancy.fit import FitOutcome, fit_keys
 from sim.discrepancy.model import NUISANCE_KEYS, Surrogate, channel_unit
 from sim.discrepancy.null import ModelLogUnavailable, model_log
-from sim.discrepancy.rig import AddedEffect, Rig, check_rig_matches_log
+from sim.discrepancy.rig import AddedEffect, Rig, check_rig_matches_log, rig_from_dict, rig_to_toml
 from sim.discrepancy.selection import (
     Candidate,
     ChannelScore,
     against_model_log,
     carried_by_model,
     effort_change,
+    fit_candidate,
     held_out_score,
     make_executor,
     run_round,
@@ -61,7 +66,7 @@ from sim.discrepancy.signals import (
     smallest_step,
 )
 from sim.discrepancy.structure import Structure, residual_structure
-from sim.runlog import HOLD_END, RunLog
+from sim.runlog import COMMAND, RunLog
 
 CHANNEL_MEANING = {
     "effort": "effort-prediction residual: commanded effort minus the effort the model needs for the measured "
@@ -69,7 +74,9 @@ CHANNEL_MEANING = {
     "sensor": "torque sensor minus the transmitted torque the model predicts it reads",
     "kinematic": "motor angle minus lever angle minus flexure twist, against the backlash model",
 }
-CONVENTION_TOLERANCE = 0.25  # a dead time within a quarter hold of one hold beyond the rig's: a time convention
+# [samples] with no time convention stated, a dead time found beyond the rig's of at least one sample less this is
+# read as logs stamped in the 'command' convention (one sample of it; :func:`final_model`)
+CONVENTION_MARGIN = 0.25
 STAND_IN_GAIN = 1.0 / 3.0  # beside an unexplained remainder, a finding explaining less is a stand-in
 LISTED_REJECTED_GAIN = 0.10  # refused candidates with at least this held-out gain are listed with their rule
 WIDEN = 10.0  # a free parameter that ends at a bound is re-fitted with bounds this many times as wide
@@ -110,7 +117,8 @@ class DiscrepancyResult:
     findings : list of Finding
         Confident findings in the order found (parameters at the final joint fit).
     tentative : list of Finding
-        Accepted effects that explain less than the unexplained remainder would: partial stand-ins.
+        Effects the search accepted that are not saved (partial stand-ins beside an unexplained remainder, or at a
+        bound without them), with their values in the search's model and why (``evidence['why_not_saved']``).
     verdict : str
         'found', 'unexplained', 'found, and an unexplained remainder', 'time convention' (the only discrepancy is
         logs stamped in another time convention than the one assumed, see ``baseline['time_convention_mismatch']``)
@@ -121,11 +129,14 @@ class DiscrepancyResult:
         Candidates of the last round with a large held-out gain, and the rule that refused each.
     logs : list of dict
         Each log's role (estimation, validation) and the relative effort prediction error ‖F - F̂‖/‖F‖ of the
-        baseline and the final model on its scored part.
+        baseline, the final model (the saved rig) and, if any, the search's model with the tentative effects, on
+        its scored part.
     signal, units : dict
         Residual channels used, with their meaning and unit.
     extended_rig : Rig
-        The rig with the findings, for ``--save-rig``.
+        The final model: the rig with the confident findings, as ``--save-rig`` writes it and reads it back.
+    final : dict
+        The final model's rig, held-out RMSE per channel, re-fitted free parameters and the logs' own zeros.
     """
 
     baseline: dict[str, Any]
@@ -138,6 +149,7 @@ class DiscrepancyResult:
     signal: dict[str, str]
     units: dict[str, str]
     extended_rig: Rig = field(repr=False)
+    final: dict[str, Any] = field(default_factory=dict)
     theta_baseline: dict[str, float] = field(repr=False, default_factory=dict)
     theta_final: dict[str, float] = field(repr=False, default_factory=dict)
     residuals_baseline: dict[str, np.ndarray] = field(repr=False, default_factory=dict)
@@ -158,7 +170,7 @@ class DiscrepancyResult:
         return {"baseline": baseline, "findings": [f.to_dict() for f in self.findings],
                 "tentative": [f.to_dict() for f in self.tentative], "verdict": self.verdict,
                 "unexplained": self.structure.to_dict(), "rejected": self.rejected, "logs": self.logs,
-                "signal": self.signal, "units": self.units}
+                "final": self.final, "signal": self.signal, "units": self.units}
 
 
 def _progress(message: str, enabled: bool) -> None:
@@ -238,6 +250,67 @@ def join(sources: list[Source]) -> tuple[RunLog, list[Segment]]:
 # ------------------------------------------------------------------------------------------------ analysis
 
 
+@dataclass(frozen=True)
+class Stage:
+    """A rig on the logs as an analysis reads them: each log checked and brought to the hold-end time convention,
+    the logs joined and prepared, the rig's surrogate, and the rig's free parameters (and nuisances) re-fitted on
+    the fit part. The analysis starts from the user's rig; its final model is the saved rig read the same way, as an
+    analysis of the saved rig begins."""
+
+    rig: Rig
+    sources: list[Source]
+    conventions: list[dict[str, str]]
+    joined: RunLog
+    segments: list[Segment]
+    factor: int
+    data: Prepared
+    model: Surrogate
+    refit: FitOutcome  # the free parameters and nuisances re-fitted
+    score: ChannelScore  # held-out RMSE of the rig with them
+    scales: dict[str, float]  # each channel's RMS on the fit part there (the fits' weights)
+    keys: tuple[str, ...]  # the free parameters' and nuisances' theta keys
+
+    @property
+    def theta(self) -> dict[str, float]:
+        return self.refit.theta
+
+
+def read_stage(logs: tuple[RunLog, ...], names: tuple[str, ...], roles: list[str], rig: Rig, config: AnalysisConfig,
+               unwrap: bool = False) -> Stage:
+    """``rig`` on ``logs`` (see :class:`Stage`); refuses logs the rig cannot have produced.
+
+    Raises
+    ------
+    InputError
+        A log the rig cannot have produced, or a baseline that needs several times the logged effort.
+    RigError
+        A rig that does not match a log.
+    """
+    sources, conventions = [], []
+    for name, role, each in zip(names, roles, logs, strict=True):
+        check_rig_matches_log(rig, each)
+        try:
+            checked = check_log(each, rig, unwrap=unwrap, filter_cutoff_hz=config.filter_cutoff_hz)
+            convention, where = time_convention(each, rig)
+        except InputError as exc:
+            raise InputError(f"{name}: {exc}" if len(logs) > 1 else str(exc), column=exc.column, row=exc.row) from None
+        conventions.append({"log": name, "time_convention": convention, "from": where})
+        sources.append(Source(name, role, to_hold_end(checked, convention)))
+    joined, segments, factor, data = join_and_prepare(sources, rig, config)
+    model = Surrogate(data, rig, config)
+    raw = model.residuals(model.theta0)
+    scales = {c: rms(r[data.fit]) or 1.0 for c, r in raw.items()}
+    keys = rig.free_keys + (NUISANCE_KEYS if "kinematic" in model.channels else ())
+    refit = fit_keys(model, model.theta0, keys, scales)
+    if refit.at_bound:
+        refit = fit_keys(model, model.theta0, keys, scales, widen=WIDEN)
+    score = held_out_score(model, refit.theta)
+    check_effort_balance(score.rmse["effort"], rms(data.filt(data.u_full)[data.held]),
+                         channel_unit("effort", rig.joint), "m" if rig.joint == "slide" else "rad")
+    scales = {c: rms(r[data.fit]) or 1.0 for c, r in model.residuals(refit.theta).items()}
+    return Stage(rig, sources, conventions, joined, segments, factor, data, model, refit, score, scales, keys)
+
+
 def analyse(log: RunLog, rig: Rig, config: AnalysisConfig | None = None, *, progress: bool = False,
             replay: bool = False, also: tuple[RunLog, ...] = (), validation: tuple[RunLog, ...] = (),
             names: tuple[str, ...] = (), unwrap: bool = False) -> DiscrepancyResult:
@@ -277,41 +350,19 @@ def analyse(log: RunLog, rig: Rig, config: AnalysisConfig | None = None, *, prog
     logs = (log, *also, *validation)
     roles = ["estimation"] * (1 + len(also)) + ["validation"] * len(validation)
     names = tuple(names) + tuple(f"log {i + 1}" for i in range(len(names), len(logs)))
-    sources, conventions = [], []
-    for name, role, each in zip(names, roles, logs, strict=True):
-        check_rig_matches_log(rig, each)
-        try:
-            checked = check_log(each, rig, unwrap=unwrap, filter_cutoff_hz=config.filter_cutoff_hz)
-            convention, where = time_convention(each, rig)
-        except InputError as exc:
-            raise InputError(f"{name}: {exc}" if len(logs) > 1 else str(exc), column=exc.column, row=exc.row) from None
-        conventions.append({"log": name, "time_convention": convention, "from": where})
-        sources.append(Source(name, role, to_hold_end(checked, convention)))
-    joined, segments, factor, data = join_and_prepare(sources, rig, config)
-    model = Surrogate(data, rig, config)
-    theta0 = model.theta0
-    _announce(model, progress)
-    timings["prepare_s"] = time.perf_counter() - t0
 
-    # 2. baseline re-fit of the free parameters (+ nuisance), scaled by the untouched baseline's RMS
-    t = time.perf_counter()
-    raw = model.residuals(theta0)
-    scales = {c: rms(r[data.fit]) or 1.0 for c, r in raw.items()}
-    nuisance = NUISANCE_KEYS if "kinematic" in model.channels else ()
-    free = rig.free_keys
-    base_fit = fit_keys(model, theta0, free + nuisance, scales)
-    if base_fit.at_bound:
-        base_fit = fit_keys(model, theta0, free + nuisance, scales, widen=WIDEN)
-    theta = base_fit.theta
+    def read(each: Rig) -> Stage:
+        return read_stage(logs, names, roles, each, config, unwrap)
+
+    # 1-2. the logs read with the rig, its free parameters (and nuisances) re-fitted
+    first = read(rig)
+    model, data, theta0, theta = first.model, first.data, first.model.theta0, first.theta
+    _announce(model, progress)
+    timings["prepare_and_baseline_s"] = time.perf_counter() - t0
+    before, scales = first.score, first.scales
     residuals_baseline = model.residuals(theta)
-    before = held_out_score(model, theta)
-    command_rms = rms(data.filt(data.u_full)[data.held])
-    check_effort_balance(before.rmse["effort"], command_rms, channel_unit("effort", rig.joint),
-                         "m" if rig.joint == "slide" else "rad")
-    scales = {c: rms(r[data.fit]) or 1.0 for c, r in residuals_baseline.items()}
-    timings["baseline_fit_s"] = time.perf_counter() - t
     rmse = ", ".join(f"{c} {value:.4g} {channel_unit(c, rig.joint)}" for c, value in before.rmse.items())
-    _progress(f"baseline held-out RMSE: {rmse} ({len(joined)} samples, {data.fit.sum()} / {data.held.sum()} "
+    _progress(f"baseline held-out RMSE: {rmse} ({len(first.joined)} samples, {data.fit.sum()} / {data.held.sum()} "
               f"grid samples fit / held out)", progress)
 
     # 3. diagnostics and identifiability
@@ -324,7 +375,7 @@ def analyse(log: RunLog, rig: Rig, config: AnalysisConfig | None = None, *, prog
     # 4. forward selection, each round judged against the current (jointly fitted) model
     t = time.perf_counter()
     findings: list[Finding] = []
-    accepted: tuple[str, ...] = free + nuisance
+    accepted: tuple[str, ...] = first.keys
     rounds: list[list[Candidate]] = []
     notes: list[str] = []
     dropped: list[dict[str, str]] = []
@@ -337,7 +388,7 @@ def analyse(log: RunLog, rig: Rig, config: AnalysisConfig | None = None, *, prog
         scores = run_round(model, candidates, current, accepted, scales, current_score, executor, progress,
                            label)
         t_null = time.perf_counter()
-        best, note = _first_passing(scores, sources, rig, config, model, current, findings, accepted, scales)
+        best, note = _first_passing(scores, first.sources, rig, config, model, current, findings, accepted, scales)
         timings["model_log_s"] = timings.get("model_log_s", 0.0) + time.perf_counter() - t_null
         rounds.append(scores)
         if note:
@@ -361,45 +412,41 @@ def analyse(log: RunLog, rig: Rig, config: AnalysisConfig | None = None, *, prog
             dropped.append({"effect": finding.effect, "reason": reason})
             _progress(f"dropped {finding.effect}: {reason}", progress)
     timings["selection_s"] = time.perf_counter() - t
-    findings = [replace(f, parameters=_parameters(f.effect, theta0, current, model)) for f in findings]
-    findings, convention_mismatch = _convention_mismatch(findings, conventions, theta0, current, data.hold_s)
 
-    # 5. the remainder, the logs' errors, the extended rig, the replay
+    # 5. the final model: the confident findings alone, saved and read back as an analysis of the saved rig begins
     t = time.perf_counter()
     refused = [c for c in rounds[-1] if not c.passes] if rounds else []
-    structure = residual_structure(model, current, current_score, refused)
-    findings, tentative = _confident(findings, structure)
-    if tentative:
-        structure = replace(structure, description=structure.description + [
-            f"{f.effect} would explain {100 * f.gain:.0f} % of the error it was found on; beside this remainder that "
-            f"makes it a partial stand-in, not a confident name (listed under 'tentative')" for f in tentative])
-    timings["structure_s"] = time.perf_counter() - t
-    extended = _extended_rig(rig, theta0, current, findings, model)
-    residuals_final = model.residuals(current)
+    final = final_model(first, read, findings, current, refused)
+    _progress(f"final model (the saved rig): held-out effort RMSE {final.stage.score.rmse['effort']:.4g} "
+              f"{channel_unit('effort', rig.joint)}", progress)
+    structure = final.structure
+    timings["final_model_s"] = time.perf_counter() - t
     replay_result: dict[str, Any] = {}
     if replay:
-        full_rate = data if factor == 1 else prepare(joined, rig, config, segments=_segments(sources, config))
-        replay_result = _replay(joined, rig, extended, full_rate, config, progress, timings)
+        full_rate = data if first.factor == 1 else prepare(first.joined, rig, config,
+                                                           segments=_segments(first.sources, config))
+        replay_result = _replay(first.joined, rig, final.read_as_hold_end(data.hold_s), full_rate, config, progress,
+                                timings)
     timings["total_s"] = time.perf_counter() - t0
-    if findings:
+    if final.findings:
         verdict = "found, and an unexplained remainder" if structure.unexplained else "found"
-    elif convention_mismatch and not structure.unexplained:
+    elif final.convention and not structure.unexplained:
         verdict = "time convention"
     else:
         verdict = "unexplained" if structure.unexplained else "no significant discrepancy"
     units = {c: channel_unit(c, rig.joint) for c in model.channels}
     baseline = {
         "rig": rig.to_dict(),
-        "time_convention": conventions,
-        "time_convention_mismatch": convention_mismatch,
-        "split": _split(data, sources, segments, config),
-        "decimation": ({"factor": factor, "rate_hz": 1.0 / data.dt,
+        "time_convention": first.conventions,
+        "time_convention_mismatch": final.convention,
+        "split": _split(data, first.sources, first.segments, config),
+        "decimation": ({"factor": first.factor, "rate_hz": 1.0 / data.dt,
                         "why": f"the log is longer than {MAX_ANALYSIS_SAMPLES} samples: analysed at the lower rate, "
-                               f"every column low-passed below its Nyquist frequency first"} if factor > 1 else None),
-        "free_parameters": {k: {"value": theta[k], "rig": theta0[k], "unit": _unit(k, rig.joint),
-                                **({"at_bound": base_fit.at_bound[k], "bounds": base_fit.bounds[k]}
-                                   if k in base_fit.at_bound else {})} for k in free},
+                               f"every column low-passed below its Nyquist frequency first"}
+                       if first.factor > 1 else None),
+        "free_parameters": _free_parameters(first, rig),
         "rmse_heldout": before.rmse,
+        "record_offsets": _record_offsets(first, theta),
         "autocorrelation": {c: autocorrelation(r[data.held], data.dt * data.grid_step)
                             for c, r in residuals_baseline.items()},
         "signatures": signatures,
@@ -417,33 +464,162 @@ def analyse(log: RunLog, rig: Rig, config: AnalysisConfig | None = None, *, prog
         "config": config.to_dict(),
         "timings_s": timings,
     }
+    final_entry = {"rig": final.rig.to_dict(), "rmse_heldout": final.stage.score.rmse,
+                   "free_parameters": _free_parameters(final.stage, final.rig),
+                   "record_offsets": _record_offsets(final.stage, final.stage.theta)}
     return DiscrepancyResult(
-        baseline=baseline, findings=findings, tentative=tentative, verdict=verdict, structure=structure,
+        baseline=baseline, findings=final.findings, tentative=final.tentative, verdict=verdict, structure=structure,
         rejected=[_rejected(c, rig.joint) for c in refused if c.gain >= LISTED_REJECTED_GAIN],
-        logs=_log_errors(model, sources, segments, theta, current),
-        signal={c: CHANNEL_MEANING[c] for c in model.channels}, units=units, extended_rig=extended,
-        theta_baseline=theta, theta_final=current, residuals_baseline=residuals_baseline,
-        residuals_final=residuals_final, time=data.t, held=data.held, fit=data.fit, replay=replay_result)
+        logs=_log_errors(first, final, current), signal={c: CHANNEL_MEANING[c] for c in model.channels}, units=units,
+        extended_rig=final.rig, final=final_entry, theta_baseline=theta, theta_final=final.stage.theta,
+        residuals_baseline=residuals_baseline, residuals_final=_on_grid(final.stage, data),
+        time=data.t, held=data.held, fit=data.fit, replay=replay_result)
 
 
-def _convention_mismatch(findings: list[Finding], conventions: list[dict[str, str]], theta0: dict[str, float],
-                         theta: dict[str, float], hold_s: float) -> tuple[list[Finding], str | None]:
-    """(the findings, None), or, if the logs' time convention is stated nowhere and the dead time found exceeds
-    the rig's by one command hold (within CONVENTION_TOLERANCE of it), (the findings without it, what it is):
-    logs stamped in the 'command' convention read as 'hold_end' act exactly one hold late
-    (:func:`sim.discrepancy.checks.to_hold_end`), a wrong convention, not a dead time of the rig."""
-    delay = next((f for f in findings if f.effect == "transport_delay"), None)
-    if delay is None or not conventions or any(c["from"] != ASSUMED_CONVENTION for c in conventions):
-        return findings, None
-    extra = theta["delay"] - theta0["delay"]
-    if abs(extra - hold_s) > CONVENTION_TOLERANCE * hold_s:
-        return findings, None
-    return [f for f in findings if f is not delay], (
-        f"the logs act one sample ({1e3 * hold_s:.3g} ms) late: a dead time of {1e3 * extra:.3g} ms beyond the rig's "
-        f"is what logs stamped in the 'command' time convention (each row's state measured when its command was "
-        f"computed) give when read as '{HOLD_END}', and no rig or log states the convention. State "
-        f"time_convention = 'command' in the rig; if the rows are stamped at the end of each hold, state "
-        f"'{HOLD_END}' and the dead time is reported as a finding")
+# ------------------------------------------------------------------------------------------- the final model
+
+
+@dataclass(frozen=True)
+class FinalModel:
+    """What the analysis saves and every final figure it reports.
+
+    Attributes
+    ----------
+    rig : Rig
+        The saved rig (``--save-rig``), as read back from its TOML text.
+    stage : Stage
+        The saved rig on the logs, read as an analysis of the saved rig begins: every final figure is its.
+    findings : list of Finding
+        The confident findings, saved, with their saved values and the held-out RMSE each brings, in order from the
+        baseline to the final model.
+    tentative : list of Finding
+        Effects the search accepted that are not saved (partial stand-ins beside an unexplained remainder, or
+        driven to a bound without them), with their values in the search's model and why.
+    convention : str or None
+        Why the saved rig states the 'command' time convention the logs do not state (None: it does not).
+    structure : Structure
+        What the final model's residual still holds.
+    """
+
+    rig: Rig
+    stage: Stage
+    findings: list[Finding]
+    tentative: list[Finding]
+    convention: str | None
+    structure: Structure
+
+    def read_as_hold_end(self, hold_s: float) -> Rig:
+        """The saved rig for logs read in the hold-end convention: stating the 'command' convention, it acts one
+        sample (``hold_s`` [s]) later on them (the same physics)."""
+        if self.rig.time_convention != COMMAND:
+            return self.rig
+        delay = self.stage.model.theta0["delay"] + hold_s
+        return replace(self.rig.with_effects((), {"delay": delay}), time_convention=None)
+
+
+def final_model(first: Stage, read: Callable[[Rig], Stage], findings: list[Finding], current: dict[str, float],
+                refused: list[Candidate]) -> FinalModel:
+    """The saved rig and its figures (:class:`FinalModel`).
+
+    1. With an unexplained remainder, effects on the effort that explain little are tentative
+       (:func:`_confident`).
+    2. Logs whose time convention nobody states, with a dead time found beyond the rig's of at least one sample
+       less CONVENTION_MARGIN, are read in the 'command' convention: one sample of the dead time is the convention
+       (the saved rig states it), and what remains beyond it is a dead time only if it passes the significance
+       rules by itself.
+    3. The confident findings are re-fitted without the others; one that then ends at a bound of its range is
+       tentative too, and the rest re-fitted again.
+    4. The rig with them is written as TOML, read back, and read on the logs as an analysis of it begins: every
+       final figure comes from there.
+    """
+    model, theta0 = first.model, first.model.theta0
+    current_score = held_out_score(model, current)
+    structure = residual_structure(model, current, current_score, refused)
+    confident, tentative = _confident(findings, structure)
+    notes = {f.effect: (f"explains {100 * f.gain:.0f} % of the error it was found on; beside the unexplained "
+                        f"remainder a partial stand-in, not a confident name") for f in tentative}
+    stage, theta, convention = first, dict(current), None
+    delay = next((f for f in confident if f.effect == "transport_delay"), None)
+    extra = current["delay"] - theta0["delay"]
+    hold = first.data.hold_s
+    unstated = all(c["from"] == ASSUMED_CONVENTION for c in first.conventions)
+    if delay is not None and unstated and extra >= (1.0 - CONVENTION_MARGIN) * hold:
+        stage = read(replace(first.rig, time_convention=COMMAND))
+        theta = {**stage.theta, **{k: v for k, v in current.items() if k not in stage.keys}}
+        theta["delay"] = max(theta0["delay"], current["delay"] - hold)
+        confident = [f for f in confident if f is not delay]
+        convention = (f"the logs act {1e3 * extra:.3g} ms late ({extra / hold:.2f} samples of {1e3 * hold:.3g} ms) "
+                      f"and no rig or log states how their rows are stamped: they are read in the 'command' time "
+                      f"convention (each row's state measured when its command was computed; the saved rig states "
+                      f"time_convention = 'command'), which accounts for one sample. If the rows are stamped at the "
+                      f"end of each hold, state time_convention = 'hold_end': the whole dead time is then a finding")
+    removed = [f for f in findings if f not in confident]
+    keys = tuple(dict.fromkeys(k for f in confident for k in EFFECTS[f.effect].keys)) + stage.keys
+    while removed:
+        start = {**theta, **{k: stage.model.theta0[k] for f in removed for k in EFFECTS[f.effect].keys
+                             if k not in keys}}
+        refit = fit_keys(stage.model, start, keys, stage.scales)
+        theta = refit.theta
+        at_bound = [f for f in confident if any(k in refit.at_bound for k in EFFECTS[f.effect].keys)]
+        if not at_bound:
+            break
+        for f in at_bound:
+            sides = ", ".join(f"{k} ({refit.at_bound[k]})" for k in EFFECTS[f.effect].keys if k in refit.at_bound)
+            notes[f.effect] = f"ends at a bound of its range without the effects set aside: {sides}"
+        confident = [f for f in confident if f not in at_bound]
+        removed = [f for f in findings if f not in confident]
+        keys = tuple(dict.fromkeys(k for f in confident for k in EFFECTS[f.effect].keys)) + stage.keys
+    if convention is not None and delay is not None:
+        judged = fit_candidate(stage.model, "transport_delay", theta, keys, stage.scales,
+                               held_out_score(stage.model, theta))
+        if judged.passes:
+            confident.append(delay)
+            theta = judged.fit.theta
+            notes.pop("transport_delay", None)
+        else:
+            notes["transport_delay"] = (f"one sample of it is the time convention; the {1e3 * (extra - hold):+.3g} ms "
+                                        f"beyond is refused by rule '{judged.rejected_by}'")
+    extended = _extended_rig(stage.rig, theta0, theta, confident, stage.model)
+    saved = rig_from_dict(tomllib.loads(rig_to_toml(extended)), source=first.rig.source)
+    final = read(saved)
+    tentative_findings = [replace(f, parameters=_parameters(f.effect, theta0, current, model),
+                                  evidence={**f.evidence, "why_not_saved": notes.get(f.effect, "")})
+                          for f in findings if f not in confident and (f is not delay or convention is None)]
+    return FinalModel(saved, final, _chain(first, final, confident), tentative_findings, convention,
+                      _final_structure(final, refused, tentative_findings))
+
+
+def _chain(first: Stage, final: Stage, confident: list[Finding]) -> list[Finding]:
+    """The confident findings with their saved values and, in the order accepted, the held-out RMSE of the final
+    model with the findings up to each: from the rig's (the findings' parameters at the rig's values, the free ones
+    as the baseline re-fitted them) to the saved rig's, the last finding's figure."""
+    theta, rig_values = dict(final.theta), first.model.theta0
+    theta.update({k: first.theta[k] for k in first.keys})  # the free parameters as the baseline re-fitted them
+    for f in confident:
+        theta.update({k: rig_values[k] for k in EFFECTS[f.effect].keys})
+    previous = held_out_score(final.model, theta)
+    out = []
+    for i, f in enumerate(confident):
+        theta.update({k: final.theta[k] for k in EFFECTS[f.effect].keys})
+        if i == len(confident) - 1:
+            theta.update({k: final.theta[k] for k in final.keys})
+        score = held_out_score(final.model, theta)
+        channel = f.evidence["channel"] if f.evidence["channel"] in score.rmse else "effort"
+        before, after = previous.rmse[channel], score.rmse[channel]
+        out.append(replace(f, parameters=_parameters(f.effect, rig_values, final.theta, first.model),
+                           rmse_heldout_before=before, rmse_heldout_after=after,
+                           gain=1.0 - after / before if before > 0 else 0.0))
+        previous = score
+    return out
+
+
+def _final_structure(final: Stage, refused: list[Candidate], tentative: list[Finding]) -> Structure:
+    """What the final model's residual holds, with the effects set aside named."""
+    structure = residual_structure(final.model, final.theta, final.score, refused)
+    if not tentative:
+        return structure
+    return replace(structure, description=structure.description + [
+        f"{f.effect} is not saved: {f.evidence['why_not_saved']} (listed under 'tentative')" for f in tentative])
 
 
 def _announce(model: Surrogate, progress: bool) -> None:
@@ -540,27 +716,71 @@ def _split(data: Prepared, sources: list[Source], segments: list[Segment], confi
     return out
 
 
-def _log_errors(model: Surrogate, sources: list[Source], segments: list[Segment], theta0: dict[str, float],
-                theta: dict[str, float]) -> list[dict[str, Any]]:
-    """Relative effort prediction error ‖F - F̂‖/‖F‖ of the baseline and the final model on each log's scored
-    part (its held-out part; a log fitted whole: the whole log) [1]. F is the logged command in the analysis
-    band, F - F̂ the effort residual."""
-    d = model.data
+def _errors(stage: Stage, theta: dict[str, float]) -> list[float]:
+    """Relative effort prediction error ‖F - F̂‖/‖F‖ of ``theta`` on each log's scored part (its held-out part; a
+    log fitted whole, or held out whole: the whole log) [1]. F is the logged command in the analysis band, F - F̂ the
+    effort residual."""
+    d, model = stage.data, stage.model
     command = d.filt(d.u_full)
-    before, after = model.residuals(theta0)["effort"], model.residuals(theta)["effort"]
-    bounds = segments or [(0, len(d.t_full), model.config.fit_fraction)]
+    residual = model.residuals(theta)["effort"]
+    bounds = stage.segments or [(0, len(d.t_full), model.config.fit_fraction)]
     out = []
-    for source, (start, stop, fraction) in zip(sources, bounds, strict=True):
+    for start, stop, fraction in bounds:
         inside = (d.grid >= start) & (d.grid < stop)
-        part = inside & (d.held if fraction < 1.0 else (d.fit | d.held))
-        ok = part & np.isfinite(before) & np.isfinite(after)
+        ok = inside & (d.held if fraction < 1.0 else (d.fit | d.held)) & np.isfinite(residual)
         norm = float(np.linalg.norm(command[ok]))
-        errors = {name: float(np.linalg.norm(r[ok])) / norm if norm > 0 else float("nan")
-                  for name, r in (("baseline", before), ("final", after))}
-        scored = "whole" if fraction in (0.0, 1.0) else "held-out part"
-        out.append({"log": source.name, "role": source.role, "scored": scored,
-                    "relative_effort_error": errors})
+        out.append(float(np.linalg.norm(residual[ok])) / norm if norm > 0 else float("nan"))
     return out
+
+
+def _log_errors(first: Stage, final: FinalModel, current: dict[str, float]) -> list[dict[str, Any]]:
+    """Each log's role and relative effort prediction error (:func:`_errors`) of the rig, of the final model (the
+    saved rig, read as an analysis of it begins) and, beside it, of the search's model with the tentative effects."""
+    baseline, saved = _errors(first, first.theta), _errors(final.stage, final.stage.theta)
+    tentative = _errors(first, current) if final.tentative else None
+    out = []
+    for i, (source, (_, _, fraction)) in enumerate(zip(first.sources, first.segments or [(0, 0, 0.5)],
+                                                       strict=True)):
+        errors = {"baseline": baseline[i], "final": saved[i]}
+        if tentative is not None:
+            errors["with_tentative"] = tentative[i]
+        out.append({"log": source.name, "role": source.role,
+                    "scored": "whole" if fraction in (0.0, 1.0) else "held-out part", "relative_effort_error": errors})
+    return out
+
+
+def _free_parameters(stage: Stage, rig: Rig) -> dict[str, dict[str, Any]]:
+    """The rig's free parameters as re-fitted: value, the rig's, unit, the range used, and its bound if it ends at
+    one."""
+    out = {}
+    for k in rig.free_keys:
+        entry: dict[str, Any] = {"value": stage.theta[k], "rig": stage.model.theta0[k], "unit": _unit(k, rig.joint),
+                                 "bounds": list(stage.refit.bounds[k])}
+        if k in stage.refit.at_bound:
+            entry["at_bound"] = stage.refit.at_bound[k]
+        out[k] = entry
+    return out
+
+
+def _record_offsets(stage: Stage, theta: dict[str, float]) -> list[dict[str, Any]]:
+    """Each log's own zero per channel, with its unit, where ``theta`` carries the effect ``record_offsets``
+    (else empty)."""
+    zeros = stage.model.record_offsets(theta)
+    if not zeros:
+        return []
+    return [{"log": source.name, **{c: {"value": values[i], "unit": channel_unit(c, stage.rig.joint)}
+                                    for c, values in zeros.items()}}
+            for i, source in enumerate(stage.sources)]
+
+
+def _on_grid(stage: Stage, data: Prepared) -> dict[str, np.ndarray]:
+    """The residual channels of the stage's final parameters at the grid times of ``data`` (the nearest grid
+    sample: the saved rig's stage may read the logs one sample apart, in another time convention)."""
+    residuals = stage.model.residuals(stage.theta)
+    if len(stage.data.t) == len(data.t) and np.array_equal(stage.data.t, data.t):
+        return residuals
+    index = np.clip(np.searchsorted(stage.data.t, data.t), 0, len(stage.data.t) - 1)
+    return {c: r[index] for c, r in residuals.items()}
 
 
 def autocorrelation(r: np.ndarray, step_s: float,

@@ -29,6 +29,7 @@ KIN_OFFSET_BOUND_RAD = 0.1  # encoder offset between motor and lever angle [rad]
 MAX_NFEV = 60  # function evaluations per least-squares refinement (x the number of parameters, at least this)
 AT_BOUND = 1e-3  # a value within this fraction of a bound's magnitude ...
 AT_BOUND_OF_RANGE = 1e-6  # ... plus this fraction of the range is at that bound (the solver stops within ~1e-10)
+EMPTY_RANGE = "empty range"  # FitOutcome.at_bound of a parameter whose range has no room (low >= high)
 
 
 @dataclass(frozen=True)
@@ -117,8 +118,12 @@ def fit_keys(model: Surrogate, theta0: dict[str, float], keys: tuple[str, ...], 
     screened = sorted(((cost_of(t), i, t) for i, t in enumerate(candidates)), key=lambda e: (e[0], e[1]))
     keys = tuple(k for k in keys if k not in held)
     bounds = {k: bounds_of(k, model, theta0, keys, widen) for k in keys}
+    # a range with no room (a breakaway range starting above its top, a rig value beyond the log's scale) holds
+    # its parameter where it is, reported as at a bound
+    empty = {k: EMPTY_RANGE for k in keys if not bounds[k][0] < bounds[k][1]}
+    keys = tuple(k for k in keys if k not in empty)
     if not keys:
-        return FitOutcome(screened[0][2], keys, screened[0][0], evaluations, bounds)
+        return FitOutcome(screened[0][2], keys, screened[0][0], evaluations, bounds, empty)
     lo = np.array([bounds[k][0] for k in keys])
     hi = np.array([bounds[k][1] for k in keys])
     span = hi - lo
@@ -144,8 +149,8 @@ def fit_keys(model: Surrogate, theta0: dict[str, float], keys: tuple[str, ...], 
         theta.update(zip(keys, solution.x.tolist(), strict=True))
         for effect in {effect_of_key(k) for k in keys if k not in NUISANCE_KEYS}:
             theta = effect.canonical(theta, model.rig.joint)
-        at_bound = {k: side for k, (low, high) in bounds.items()
-                    if (side := at_bound_of(k, theta[k], low, high, theta0[k]))}
+        at_bound = {**empty, **{k: side for k in keys
+                                if (side := at_bound_of(k, theta[k], *bounds[k], theta0[k]))}}
         best = FitOutcome(theta, keys, float(2.0 * solution.cost), 0, bounds, at_bound, solution.jac)
     assert best is not None
     return FitOutcome(best.theta, keys, best.cost, evaluations, bounds, best.at_bound, best.jacobian)

@@ -193,6 +193,7 @@ class Surrogate:
         if self.testbed and d.q is not None and d.has_motor_encoder:
             self.channels.append("kinematic")
         self.command_rms = rms(d.filt(d.u_full)[d.held | d.fit])  # [N·m | N] the command in the analysis band
+        self.records = self._records()
         peak = self.theta0["peak_effort"]
         self.scale = Scale(
             effort=max(float(np.abs(d.u_full).max()), peak if math.isfinite(peak) else 0.0, 1e-12),
@@ -263,6 +264,29 @@ class Surrogate:
         for t0 in changes:
             out[(self.data.t >= t0) & (self.data.t < t0 + REVERSAL_WINDOW_S)] = 1.0
         return out
+
+    def _records(self) -> list[tuple[np.ndarray, np.ndarray]]:
+        """(its grid samples, the samples its zero is fitted on) of each joined log (record): its fit part, or its
+        held-out part when it is held out whole (a validation log). Empty for one log."""
+        d = self.data
+        out = []
+        for start, stop in d.bounds:
+            inside = (d.grid >= start) & (d.grid < stop)
+            fitted = inside & d.fit
+            out.append((inside, fitted if fitted.any() else inside & d.held))
+        return out
+
+    def _record_offsets(self, residual: np.ndarray, counted: np.ndarray) -> tuple[np.ndarray, list[float]]:
+        """Each record's own zero of a residual channel (its mean on the samples its zero is fitted on that
+        ``counted`` marks), as a grid array and a list [channel unit]."""
+        offsets = np.zeros(len(residual))
+        values = []
+        for inside, fitted in self.records:
+            ok = fitted & counted & np.isfinite(residual)
+            value = float(np.mean(residual[ok])) if ok.any() else 0.0
+            offsets[inside] = value
+            values.append(value)
+        return offsets, values
 
     # -- terms --------------------------------------------------------------------------------------------
     def delivered(self, theta: dict[str, float]) -> np.ndarray:
@@ -354,26 +378,49 @@ class Surrogate:
     def residuals(self, theta: dict[str, float]) -> dict[str, np.ndarray]:
         """Residual (measured - model) of every channel the log supports, on the grid; NaN where a sample does
         not count."""
+        return self._residuals(theta)[0]
+
+    def record_offsets(self, theta: dict[str, float]) -> dict[str, list[float]]:
+        """Each record's own zero, per channel it applies to [channel unit], where ``theta`` carries the effect
+        ``record_offsets`` (empty otherwise)."""
+        return self._residuals(theta)[1]
+
+    def _residuals(self, theta: dict[str, float]) -> tuple[dict[str, np.ndarray], dict[str, list[float]]]:
+        """(the residual channels, the records' own zeros): with the effect ``record_offsets``, each joined log
+        carries its own zero of the effort (and sensor) channel, the mean of its residual on the sliding samples it
+        is fitted on (``records``), taken out before the stuck samples' band."""
         d = self.data
         out: dict[str, np.ndarray] = {}
+        zeros: dict[str, list[float]] = {}
+        per_record = bool(self.records) and theta.get("record_offsets", 0.0) >= 0.5
         rest = (self.delivered(theta) - theta["inertia"] * d.acceleration - theta["viscous"] * d.velocity
                 - self.loads(theta))
         if self.testbed:
             tau = self.transmitted(theta)
             rest = rest - tau - self.friction(theta)
             cap = theta["load_coefficient"] * np.abs(tau)
+            if per_record:
+                offsets, zeros["effort"] = self._record_offsets(rest - cap * self.slide_sign, ~self.stuck)
+                rest = rest - offsets
             stuck_rest = rest - cap * self.stuck_edge
             band = cap * self.stuck_band
             out["effort"] = np.where(self.stuck, stuck_rest - np.clip(stuck_rest, -band, band),
                                      rest - cap * self.slide_sign)
             if "sensor" in self.channels:
                 out["sensor"] = d.tau_sensor - self.sensor_model(theta, tau)
+                if per_record:
+                    offsets, zeros["sensor"] = self._record_offsets(out["sensor"], np.ones(len(d.t), bool))
+                    out["sensor"] = out["sensor"] - offsets
             if "kinematic" in self.channels:
                 twist = d.position - d.q - tau / self.const["flexure_stiffness"]
                 expected = 0.5 * theta["backlash_width"] * np.sign(tau) + theta["kin_offset"]
                 out["kinematic"] = np.where(np.abs(tau) > self.config.contact_torque, twist - expected, np.nan)
         else:
             static = self.static_level(theta)
-            effort = np.where(self.stuck, rest - np.clip(rest, -static, static), rest - self.friction(theta))
+            friction = self.friction(theta)
+            if per_record:
+                offsets, zeros["effort"] = self._record_offsets(rest - friction, ~self.stuck & ~self.near_transition)
+                rest = rest - offsets
+            effort = np.where(self.stuck, rest - np.clip(rest, -static, static), rest - friction)
             out["effort"] = np.where(self.near_transition, np.nan, effort)
-        return out
+        return out, zeros

@@ -29,9 +29,26 @@ def _value(entry: dict) -> str:
     return text + (f" ({'; '.join(notes)})" if notes else "")
 
 
+def _free(entry: dict) -> str:
+    """'value unit (rig ...; range [low, high])', and the bound it ends at."""
+    low, high = entry["bounds"]
+    text = (f"{entry['value']:.6g} {entry['unit']} (rig {entry['rig']:.6g}; range [{low:.4g}, {high:.4g}] "
+            f"{entry['unit']})")
+    if "at_bound" in entry:
+        text += (f"; at the {entry['at_bound']} bound: the rig's value is far off, or another effect pulls it "
+                 f"there")
+    return text
+
+
+def _zeros(entry: dict) -> str:
+    """'effort +0.12 N·m, sensor -0.03 N·m': each channel's own zero of a log."""
+    return ", ".join(f"{c} {v['value']:+.4g} {v['unit']}" for c, v in entry.items() if c != "log")
+
+
 def format_result(result: DiscrepancyResult) -> str:
-    """A plain-text report: split, baseline, findings in order, refused candidates, the unexplained remainder,
-    each log's relative effort error, what the logs cannot reveal, the verdict."""
+    """A plain-text report: split, baseline, the time convention, findings in order, refused candidates, the
+    tentative effects, the final model (the saved rig), the unexplained remainder, each log's relative effort error,
+    what the logs cannot reveal, the verdict."""
     b = result.baseline
     split = b["split"]
     if "logs" in split:
@@ -43,15 +60,10 @@ def format_result(result: DiscrepancyResult) -> str:
                  f"{split['guard_s']} s filter guards")
     for entry in b["time_convention"]:
         lines.append(f"  time convention of {entry['log']}: {entry['time_convention']} ({entry['from']})")
-    if b.get("time_convention_mismatch"):
-        lines.append(f"  wrong time convention? {b['time_convention_mismatch']}")
     for key, entry in b["free_parameters"].items():
-        line = f"  re-fitted baseline {key}: {entry['value']:.6g} {entry['unit']} (rig {entry['rig']:.6g})"
-        if "at_bound" in entry:
-            low, high = entry["bounds"]
-            line += (f"; at the {entry['at_bound']} bound of its range [{low:.4g}, {high:.4g}] {entry['unit']}: "
-                     f"the rig's value is far off, or another effect pulls it there")
-        lines.append(line)
+        lines.append(f"  re-fitted baseline {key}: {_free(entry)}")
+    for entry in b.get("record_offsets") or []:
+        lines.append(f"  {entry['log']}: its own zero (the rig's record_offsets), " + _zeros(entry))
     lines.append("Baseline held-out RMSE: " + ", ".join(
         f"{c} {v:.4g} {result.units[c]}" if math.isfinite(v) else f"{c} n/a (no held-out samples)"
         for c, v in b["rmse_heldout"].items()))
@@ -59,8 +71,14 @@ def format_result(result: DiscrepancyResult) -> str:
                  "resembles is a candidate, a finding needs the significance rule):")
     for s in b["signatures"][:SIGNATURES_SHOWN]:
         lines.append(f"  {s['channel']:>9s}  {s['signature']:<40s} {s['correlation']:+.3f}  ({s['effect']})")
+    if b.get("time_convention_mismatch"):
+        lines.append(f"Time convention: {b['time_convention_mismatch']}")
+        if result.findings:
+            lines.append(f"  read so, the rig's held-out {result.findings[0].evidence['channel']} RMSE is "
+                         f"{result.findings[0].rmse_heldout_before:.4g}")
     if result.findings:
-        lines.append("Findings, in the order accepted (values of the final joint fit):")
+        lines.append("Findings, in the order accepted (the values saved; held-out RMSE of the final model with the "
+                     "findings up to each):")
         for i, f in enumerate(result.findings, 1):
             params = ", ".join(f"{k} = {_value(v)}" for k, v in f.parameters.items())
             what = "re-fit of the rig's value" if f.kind == "re-fit" else "new to the rig"
@@ -81,6 +99,20 @@ def format_result(result: DiscrepancyResult) -> str:
             bound = f"; at bound: {sides}" if sides else ""
             lines.append(f"  {r['effect']}: {100 * r['gain']:.1f} % gain, refused by '{r['rejected_by']}' "
                          f"({params}{bound}{note})")
+    if result.tentative:
+        lines.append("Tentative, not saved (values of the search's model, which held them):")
+        for f in result.tentative:
+            params = ", ".join(f"{k} = {_value(v)}" for k, v in f.parameters.items())
+            lines.append(f"  {f.effect}: {params}; {f.evidence.get('why_not_saved', '')}")
+    final = result.final
+    if final:
+        lines.append("Final model (what --save-rig writes, read back on the logs): held-out RMSE "
+                     + ", ".join(f"{c} {v:.4g} {result.units[c]}" if math.isfinite(v) else f"{c} n/a"
+                                 for c, v in final["rmse_heldout"].items()))
+        for key, entry in final.get("free_parameters", {}).items():
+            lines.append(f"  re-fitted {key}: {_free(entry)}")
+        for entry in final.get("record_offsets") or []:
+            lines.append(f"  {entry['log']}: its own zero, " + _zeros(entry))
     s = result.structure
     if s.unexplained:
         lines.append("Unexplained: the residual holds a discrepancy the library does not name:")
@@ -94,8 +126,10 @@ def format_result(result: DiscrepancyResult) -> str:
     lines.append("Relative effort prediction error ‖F - F̂‖/‖F‖ (F the command in the analysis band):")
     for entry in result.logs:
         e = entry["relative_effort_error"]
+        tentative = (f" (with the tentative effects as well: {e['with_tentative']:.4f})"
+                     if "with_tentative" in e else "")
         lines.append(f"  {entry['log']} ({entry['role']}, {entry['scored']}): baseline {e['baseline']:.4f}, "
-                     f"final {e['final']:.4f}")
+                     f"final model {e['final']:.4f}{tentative}")
     lines.append("The logs cannot reveal:")
     for name, why in b["not_identifiable"].items():
         effect = EFFECTS[name]

@@ -24,7 +24,8 @@ Rigid joint (a user's own drive)::
     effort_gain = 1.0                  # delivered effort per unit of tau_cmd [1]
     delay_s = 0.0                      # optional command dead time [s]
     peak_effort = 100.0                # optional saturation [N | N·m]
-    gravity_amplitude = 0.0            # optional: m·g·sin(incline) [N] or m·g·r [N·m] (hinge)
+    constant_effort = 0.0              # optional: a constant force [N] or torque [N·m] the joint needs
+    gravity_amplitude = 0.0            # optional, hinge: m·g·r [N·m]
     gravity_angle_rad = 0.0            # optional, hinge: angle of zero gravity torque
     free = ["mass_kg", "friction.coulomb"]
     [friction]
@@ -63,10 +64,15 @@ _RIGID_FIELDS: dict[str, tuple[str, str, str, float, float]] = {
     "effort_gain": ("effort_gain", "1", "1", 0.0, 1e6),
     "delay_s": ("delay", "s", "s", 0.0, MAX_DELAY_S),
     "peak_effort": ("peak_effort", "N·m", "N", 0.0, 1e6),
-    "gravity_amplitude": ("gravity_amplitude", "N·m", "N", -1e4, 1e4),
+    "constant_effort": ("constant_effort", "N·m", "N", -1e4, 1e4),
+    "gravity_amplitude": ("gravity_amplitude", "N·m", "", -1e4, 1e4),
     "gravity_angle_rad": ("gravity_angle", "rad", "", -math.pi, math.pi),
 }
-_RIGID_DEFAULTS = {"delay": 0.0, "gravity_amplitude": 0.0, "gravity_angle": 0.0}
+_RIGID_DEFAULTS = {"delay": 0.0, "constant_effort": 0.0, "gravity_amplitude": 0.0, "gravity_angle": 0.0}
+# rigid-joint fields that apply to one kind of joint only, and what to say when the other states them
+_HINGE_ONLY = {"inertia_kgm2": "a slide's inertia is mass_kg",
+               "gravity_amplitude": "gravity along a slide's incline is a constant force: constant_effort",
+               "gravity_angle_rad": "gravity along a slide's incline is a constant force: constant_effort"}
 _RIGID_FRICTION: dict[str, tuple[str, str, str, float, float]] = {
     "coulomb": ("coulomb", "N·m", "N", 0.0, 1e4),
     "viscous": ("viscous", "N·m·s/rad", "N·s/m", 0.0, 1e6),
@@ -294,7 +300,7 @@ def _testbed(data: dict[str, Any], source: str) -> Rig:
 
 
 def _rigid_name_applies(name: str, joint: str) -> bool:
-    if name in ("inertia_kgm2", "gravity_angle_rad"):
+    if name in _HINGE_ONLY:
         return joint == "hinge"
     if name == "mass_kg":
         return joint == "slide"
@@ -313,7 +319,8 @@ def _rigid(data: dict[str, Any], source: str) -> Rig:
         if key not in _RIGID_FIELDS or not _rigid_name_applies(key, joint):
             valid = [k for k in _RIGID_FIELDS if _rigid_name_applies(k, joint)]
             close = difflib.get_close_matches(key, valid, n=1)
-            hint = f" (did you mean {close[0]!r}?)" if close else ""
+            hint = (f" ({_HINGE_ONLY[key]})" if key in _HINGE_ONLY and joint == "slide" else
+                    f" (did you mean {close[0]!r}?)" if close else "")
             raise RigError(f"unknown key {key!r} for a rigid {joint} joint{hint}; valid keys: model, joint, "
                            f"free, effects, friction, time_convention, {', '.join(valid)}")
         theta_key, unit_h, unit_s, low, high = _RIGID_FIELDS[key]

@@ -5,11 +5,17 @@ has accepted so far, the rig's free baseline parameters and the nuisances) on th
 held-out part against the **current** model. A candidate is accepted only if every rule holds; the first that
 fails is recorded as the reason (``Candidate.rejected_by``):
 
+``simpler``
+    where its fitted law degenerates into a simpler one over the span of the log (:meth:`Effect.simpler
+    <sim.discrepancy.effects.base.Effect.simpler>`: a spring whose rest position lies outside the motion is a
+    constant effort there, a resonance at the top of the analysis band a rigid inertia), it must pass the rules
+    ``bic``, ``gain`` and ``events`` against the model with the simpler law fitted instead; otherwise the simpler
+    law is the one to name (it is a candidate of its own);
 ``bound``
-    none of its parameters ends at a bound of its range, after one re-fit with the bounds ten times as wide
-    (within the parameter's physical validity), and it drives none of the accepted parameters to a bound: a fit
-    that wants a value the rig's scale makes implausible, or that only helps by shrinking the whole balance
-    (an effort gain with every other term free), is not that effect;
+    none of its parameters ends at a bound of its range (the range reported beside every value), and it drives
+    none of the accepted parameters to a bound: a fit that wants a value the rig's scale makes implausible, or
+    that only helps by shrinking the whole balance (an effort gain with every other term free), is not that
+    effect;
 ``bic``
     the held-out BIC falls by more than ``min_ic_drop``:
     ``ΔBIC = Σ_c n_c·ln(RSS_c,after / RSS_c,before) + k·ln(n) < -min_ic_drop``, ``n_c`` the channel's independent
@@ -21,7 +27,8 @@ fails is recorded as the reason (``Candidate.rejected_by``):
     an effect on the effort changes the model's held-out effort prediction by at least ``min_effort_change`` of
     the command (RMS): below that, a discrepancy is within what the surrogate resolves (its mismatch with a
     simulated plant of the same physics is 0.1-0.4 % of the command), however much of a small residual it
-    explains;
+    explains. A dead time is exempt (:attr:`Effect.any_size <sim.discrepancy.effects.base.Effect.any_size>`): it
+    matters to a controller whatever effort it leaves;
 ``events``
     the improvement holds across the held-out part. The per-sample drop of the squared residuals
     (channels weighted by their mean square before) is summed per block of ``block_s``; the mean block drop,
@@ -60,8 +67,7 @@ from sim.discrepancy.model import Surrogate
 from sim.discrepancy.signals import AnalysisConfig
 from sim.executor import Executor
 
-RULES = ("bound", "bic", "gain", "size", "events", "moved", "stationary")
-WIDEN = 10.0  # a fit at a bound is repeated with bounds this many times as wide
+RULES = ("simpler", "bound", "bic", "gain", "size", "events", "moved", "stationary")
 LARGE_GAIN = 1.0 / 3.0  # a candidate explaining this much passes 'events' on the blocks it changes
 LARGE_GAIN_BLOCK_SHARE = 2.0 / 3.0  # ... if it improves this share of them
 MATERIAL_BLOCK_SHARE = 0.02  # a block changes materially if its |drop| is above 2 % of the summed |drops|
@@ -228,12 +234,12 @@ def candidate_keys(effect: str, accepted: tuple[str, ...]) -> tuple[str, ...]:
 
 
 def fit_effect(model: Surrogate, effect: str, theta: dict[str, float], accepted: tuple[str, ...],
-               scales: dict[str, float], *, mask: np.ndarray | None = None, widen: float = 1.0) -> FitOutcome:
+               scales: dict[str, float], *, mask: np.ndarray | None = None) -> FitOutcome:
     """Fit one effect's parameters jointly with the ``accepted`` keys, from the effect's starting points."""
     spec = EFFECTS[effect]
     starts, held = spec.starts(model, theta)
     return fit_keys(model, theta, candidate_keys(effect, accepted), scales, starts, mask=mask, held=held,
-                    widen=widen, refine=spec.refined_starts)
+                    refine=spec.refined_starts)
 
 
 def fit_candidate(model: Surrogate, effect: str, theta: dict[str, float], accepted: tuple[str, ...],
@@ -242,27 +248,46 @@ def fit_candidate(model: Surrogate, effect: str, theta: dict[str, float], accept
     ``gain``, ``events`` and ``stationary`` (``moved`` needs the model's own log: :func:`against_model_log`)."""
     start = time.perf_counter()
     cfg = model.config
+    spec = EFFECTS[effect]
     outcome = fit_effect(model, effect, theta, accepted, scales)
-    own = set(EFFECTS[effect].keys)
-    if any(k in own for k in outcome.at_bound):
-        outcome = fit_effect(model, effect, theta, accepted, scales, widen=WIDEN)
+    own = set(spec.keys)
     # its own parameters, or accepted ones it drives to a bound they were not at (a degenerate joint fit, e.g.
     # an effort gain shrinking every term of the balance with it)
     at_bound = {k: side for k, side in outcome.at_bound.items()
                 if k in own or at_bound_of(k, theta[k], *outcome.bounds[k]) is None}
     after = held_out_score(model, outcome.theta)
-    delta, gains = compare(before, after, len(EFFECTS[effect].keys))
+    delta, gains = compare(before, after, spec.n_parameters(model))
     gain = max(gains.values()) if gains else 0.0
     block = block_samples(model)
     z, share = event_test(before, after, block)
     change = effort_change(before, after)
-    checks = {"bound": not at_bound, "bic": delta < -cfg.min_ic_drop, "gain": gain >= cfg.min_relative_gain,
-              "size": EFFECTS[effect].channel != "effort" or change >= cfg.min_effort_change * model.command_rms,
+    note = ""
+    simpler = spec.simpler(model, outcome.theta)
+    if simpler is not None:
+        name, why = simpler
+        plain = held_out_score(model, fit_effect(model, name, theta, accepted, scales).theta)
+        extra = max(1, spec.n_parameters(model) - EFFECTS[name].n_parameters(model))
+        d_simpler, g_simpler = compare(plain, after, extra)
+        gain_simpler = max(g_simpler.values()) if g_simpler else 0.0
+        z_simpler, share_simpler = event_test(plain, after, block)
+        if not (d_simpler < -cfg.min_ic_drop and gain_simpler >= cfg.min_relative_gain
+                and passes_events(gain_simpler, z_simpler, share_simpler, cfg.min_event_z)):
+            note = (f"over the span of the log it is {name}: {why}; against {name} it gains "
+                    f"{100 * gain_simpler:.1f} % (ΔBIC {d_simpler:.1f})")
+        else:
+            simpler = None
+    checks = {"bound": not at_bound, "simpler": simpler is None, "bic": delta < -cfg.min_ic_drop,
+              "gain": gain >= cfg.min_relative_gain,
+              "size": spec.channel != "effort" or spec.any_size or change >= cfg.min_effort_change * model.command_rms,
               "events": passes_events(gain, z, share, cfg.min_event_z),
               "moved": moved_enough(effect, theta, outcome.theta, cfg.min_parameter_change)}
     rejected = next((rule for rule in RULES if not checks.get(rule, True)), None)
+    if rejected == "bound" and not note:
+        note = "at the " + "; ".join(f"{side} bound of {k}'s range [{outcome.bounds[k][0]:.4g}, "
+                                     f"{outcome.bounds[k][1]:.4g}]" for k, side in at_bound.items())
     candidate = Candidate(effect, outcome, after, delta, gains, z, share, rejected, 0.0, at_bound,
-                          effort_change=change / model.command_rms if model.command_rms > 0 else float("nan"))
+                          effort_change=change / model.command_rms if model.command_rms > 0 else float("nan"),
+                          note=note)
     if rejected is None:
         candidate = stationarity(model, candidate, theta, accepted, scales)
     return replace(candidate, seconds=time.perf_counter() - start)
@@ -274,7 +299,9 @@ def stationarity(model: Surrogate, candidate: Candidate, theta: dict[str, float]
     fit part's values) must agree with the fit part's."""
     cfg = model.config
     effect = EFFECTS[candidate.effect]
-    keys = tuple(k for k in effect.keys if not effect.param(k).cyclic)
+    keys = effect.stationary_keys
+    if not keys:
+        return candidate
     fit_part = candidate.fit
     held = fit_keys(model, fit_part.theta, keys, scales, mask=model.data.held)
     fraction = model.data.independent_per_grid_sample

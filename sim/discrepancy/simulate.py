@@ -2,8 +2,8 @@
 
 Each effect says how MuJoCo carries it (:meth:`~sim.discrepancy.effects.base.Effect.realise`); effects made of
 the rig's own parameters (friction levels, Stribeck, viscous, presliding, load-dependent friction, backlash,
-dead time, inertia, a rigid joint's gain and gravity) are carried by the rig itself, so the plant is built with
-them. The others arrive as:
+dead time, inertia, a rigid joint's gain, constant effort and gravity) are carried by the rig itself, so the plant
+is built with them. The others arrive as:
 
 - a map of the command before the drive (roll-off; the testbed's effort gain);
 - a load on the joint from its state, applied as a generalised force at every physics step (rigid joint) or
@@ -241,6 +241,7 @@ def run_rigid(rig: Rig, command: CommandFn, n_ticks: int, *, initial: InitialSta
         prime_ctrl_history(model, data, drive, past, RIGID_SUBSTEPS * model.opt.timestep)
         data.ctrl[drive] = past[-1]
     load = joint_load(rig)
+    constant = rig.rigid.get("constant_effort", 0.0)
     base_gravity, base_angle = rig.rigid.get("gravity_amplitude", 0.0), rig.rigid.get("gravity_angle", 0.0)
     giveback = stribeck_giveback(rig)
     slide = rig.joint == "slide"
@@ -248,7 +249,7 @@ def run_rigid(rig: Rig, command: CommandFn, n_ticks: int, *, initial: InitialSta
     t0 = data.time
 
     def force(q: float, qd: float) -> float:
-        needed = (base_gravity if slide else base_gravity * math.sin(q - base_angle)) if base_gravity else 0.0
+        needed = constant + (base_gravity * math.sin(q - base_angle) if base_gravity else 0.0)
         if load is not None:
             needed += load(q, qd, data.time - t0)
         return (giveback(qd) if giveback is not None else 0.0) - needed

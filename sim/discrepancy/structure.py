@@ -18,7 +18,9 @@ generic model explains a significant part of the held-out residual (the candidat
 ("effort error grows with v|v|", "a 6.0 Hz line not locked to position"), with the RMSE it leaves. So is a
 candidate effect that would explain a third or more of the residual but was refused because its parameters sit at a
 bound of the rig's plausible range or drift across the log (non-stationary): the nearest library effect is then
-named as not fitting, not as the finding. The whiteness of the held-out residual (Ljung-Box, at the band's rate of
+named as not fitting, not as the finding (unless it only scales the whole balance, as an effort gain at its
+bound does). A remainder below the smallest reportable change (``min_effort_change`` of the command) is not
+unexplained, whatever its shape. The whiteness of the held-out residual (Ljung-Box, at the band's rate of
 independent samples) is reported beside.
 """
 
@@ -224,7 +226,7 @@ def residual_structure(model: Surrogate, theta: dict[str, float], current: Chann
             description.append(f"{phrase} (alone it explains {100 * value:.0f} % of the held-out residual)")
     nearest = []
     for c in refused:
-        if c.rejected_by in UNEXPLAINED_RULES and c.gain >= NEAREST_GAIN:
+        if c.rejected_by in UNEXPLAINED_RULES and c.gain >= NEAREST_GAIN and EFFECTS[c.effect].explains_at_bound:
             why = (f"its {', '.join(c.at_bound)} sits at a bound of the rig's plausible range"
                    if c.rejected_by == "bound" else c.note)
             nearest.append(f"{c.effect} would explain {100 * c.gain:.0f} % of the held-out error, but {why}")
@@ -234,7 +236,9 @@ def residual_structure(model: Surrogate, theta: dict[str, float], current: Chann
     typical = median_block_rms(residual[d.held], block)
     fraction = typical / model.command_rms if model.command_rms > 0 else float("nan")
     too_large = fraction >= cfg.max_remainder
-    unexplained = significant or bool(nearest) or too_large
+    # below the smallest reportable change nothing material is left, whatever its shape
+    material = fraction >= cfg.min_effort_change
+    unexplained = too_large or (material and (significant or bool(nearest)))
     if unexplained:
         unit = channel_unit("effort", model.rig.joint)
         description.insert(0, f"the final model leaves {rmse['effort']:.4g} {unit} RMS of effort error held out, "

@@ -14,6 +14,7 @@ all of it:
 ``sensor``           what the effect adds to the torque sensor's reading [N·m]
 ``starts``           starting values of a fit (grids, or linear sub-problems solved directly)
 ``identifiable``     whether the log can reveal it, and if not, why
+``simpler``          the simpler law its fitted parameters make it over the span of the log, if any
 ``signature``        the signal whose correlation with the residual points at it (diagnostics)
 ``realise``          how the MuJoCo simulation carries it (:class:`Realisation`)
 ``draw``             the range the synthetic generator draws a hidden value from
@@ -177,10 +178,22 @@ class Effect:
     # step than the 16-bit one resolves its motion)
     revealing_experiment: ClassVar[str]
     needs_fine_motor_encoder: ClassVar[bool] = False
+    any_size: ClassVar[bool] = False  # exempt from the significance rule 'size' (a dead time matters at any size)
+    explains_at_bound: ClassVar[bool] = True  # a fit at its bound is a near explanation (not: a gain that only
+    # scales the whole balance)
 
     @property
     def keys(self) -> tuple[str, ...]:
         return tuple(p.key for p in self.params)
+
+    @property
+    def stationary_keys(self) -> tuple[str, ...]:
+        """The parameters rule 'stationary' compares between the fit and the held-out part (not the phases)."""
+        return tuple(p.key for p in self.params if not p.cyclic)
+
+    def n_parameters(self, model: Surrogate) -> int:
+        """Parameters the effect fits on ``model``'s log, for the information criterion (default: its own)."""
+        return len(self.params)
 
     def param(self, key: str) -> Param:
         return next(p for p in self.params if p.key == key)
@@ -228,6 +241,13 @@ class Effect:
 
     def identifiable(self, model: Surrogate, theta: dict[str, float]) -> str | None:
         """None if the log can reveal the effect; otherwise why not."""
+        return None
+
+    def simpler(self, model: Surrogate, theta: dict[str, float]) -> tuple[str, str] | None:
+        """(the simpler effect, why) if the law with the fitted ``theta`` degenerates into that effect's over the
+        span of the log (a spring whose rest position lies outside the motion: a constant effort there); None
+        otherwise (default). The selection then names the simpler law unless this one explains significantly
+        more (rule 'simpler')."""
         return None
 
     # -- the surrogate's terms ----------------------------------------------------------------------------

@@ -8,7 +8,7 @@ damping ratio ``ζ = c/(2·sqrt(k·μ))`` of that mode, μ = m1·m2/m.
 The driven mass needs ``m1·ẍ + m2·ẍ2`` where ``x2 = H(s)·x``, ``H = (c·s + k)/(m2·s² + c·s + k)``; so the effort
 is ``m·ẍ + m·φ·G(s)·ẍ`` with ``G = H - 1 = -s²/(s² + 2ζ(1-φ)ω_r·s + (1-φ)ω_r²)``, ω_r = 2π·f_r, a linear filter of
 the measured acceleration (discretised by the bilinear transform). A resonance above the analysis band
-(``filter_cutoff_hz``) cannot be seen.
+(``filter_cutoff_hz``) cannot be seen: below it the masses move as one, an inertia (rule 'simpler').
 """
 
 from __future__ import annotations
@@ -23,6 +23,7 @@ from sim.discrepancy.effects.base import RIGID_RIGS, TWO_PI, Effect, Param, Real
 FRACTION_RANGE = (0.01, 0.95)
 DAMPING_RANGE = (0.005, 1.0)
 MAX_OF_BAND = 0.9  # the highest resonance fitted: 90 % of the analysis band
+RIGID_OF_TOP = 0.95  # a resonance fitted within 5 % of that top is a rigid inertia over the band ('simpler')
 MIN_FREQUENCY_HZ = 1.0
 FREQUENCY_STARTS = 8  # log-spaced resonance frequencies screened
 FRACTION_STARTS = (0.2, 0.5)
@@ -85,6 +86,13 @@ class DrivetrainCompliance(Effect):
 
     def identifiable(self, model, theta):
         return needs_acceleration(model, theta)
+
+    def simpler(self, model, theta):
+        top = self.bounds("resonance_frequency", model.scale, theta)[1]
+        if theta["compliant_fraction"] > 0.0 and theta["resonance_frequency"] >= RIGID_OF_TOP * top:
+            return "inertia", (f"its resonance {theta['resonance_frequency']:.3g} Hz lies at the top of the analysis "
+                               f"band ({model.config.filter_cutoff_hz:g} Hz): below it the two masses move as one")
+        return None
 
     def signature_signal(self, model, theta):
         return self._filtered(model, 0.3, 0.5 * model.config.filter_cutoff_hz, 0.1)

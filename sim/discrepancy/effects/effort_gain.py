@@ -18,6 +18,7 @@ class EffortGain(Effect):
                     fields={"hinge": "effort_gain", "slide": "effort_gain"}, valid=(0.0, 1e6), firm=True),)
     signature = "command"
     order = 45  # after the roll-off: on the testbed its realisation scales what the motor's map delivers
+    explains_at_bound = False  # at its bound it scales the whole balance down (or up): no explanation
 
     def bounds(self, key, scale, theta):
         return RANGE[0] * scale.baseline["effort_gain"], RANGE[1] * scale.baseline["effort_gain"]

@@ -1,7 +1,7 @@
-"""Gravity: the weight of the moving part on a tilted axis.
+"""Gravity: the weight of the moving part of a hinge on a tilted axis.
 
-A hinge needs ``A·sin(q - q0)`` (A = m·g·r, q0 the angle of zero gravity torque; the testbed: on its lever); a
-slide needs the constant ``A`` (m·g·sin(incline)), which is also any constant force offset on a slide.
+A hinge needs ``A·sin(q - q0)`` (A = m·g·r, q0 the angle of zero gravity torque; the testbed: on its lever). On a
+slide gravity along the incline is a constant force: :mod:`sim.discrepancy.effects.constant_effort`.
 """
 
 from __future__ import annotations
@@ -10,23 +10,24 @@ import math
 
 import numpy as np
 
-from sim.discrepancy.effects.base import SLIDE, TESTBED, Effect, Param, Realisation, linear_starts, wrap_angle
+from sim.discrepancy.effects.base import HINGE, TESTBED, Effect, Param, Realisation, linear_starts, wrap_angle
 
 MIN_RANGE_RAD = 1.0  # a hinge must turn through 1 rad
 MAX_OF_EFFORT = 2.0  # fit bound: A up to twice the largest effort in the log
 TESTBED_RANGE_NM = (0.03, 0.06)  # synthetic draws
-RIGID_RANGE_OF_COULOMB = (1.0, 2.0)  # synthetic draws: x the rig's Coulomb level (a slide: either sign)
+RIGID_RANGE_OF_COULOMB = (1.0, 2.0)  # synthetic draws: x the rig's Coulomb level
 
 
 class Gravity(Effect):
     name = "gravity"
     revealing_experiment = "free"
-    description = "weight of the moving part on a tilted axis (a slide: any constant force)"
-    params = (Param("gravity_amplitude", "N·m", "N", "m·g·r (hinge) or m·g·sin(incline) (slide)",
-                    fields={"hinge": "gravity_amplitude", "slide": "gravity_amplitude"}, valid=(-1e6, 1e6)),
+    description = "weight of the moving part of a hinge on a tilted axis"
+    params = (Param("gravity_amplitude", "N·m", "N", "m·g·r", fields={"hinge": "gravity_amplitude"},
+                    valid=(-1e6, 1e6)),
               Param("gravity_angle", "rad", "rad", "joint angle of zero gravity torque", neutral=None, cyclic=True,
                     fields={"hinge": "gravity_angle_rad"},
                     valid=(-math.pi, math.pi)))
+    rigs = frozenset({TESTBED, HINGE})
     signature = "sin(position)"
     order = 50
 
@@ -37,9 +38,6 @@ class Gravity(Effect):
 
     def canonical(self, theta, joint):
         theta = dict(theta)
-        if joint == SLIDE:
-            theta["gravity_angle"] = 0.0
-            return theta
         if theta["gravity_amplitude"] < 0.0:  # A·sin(q - q0) = -A·sin(q - q0 - π)
             theta["gravity_amplitude"] = -theta["gravity_amplitude"]
             theta["gravity_angle"] += math.pi
@@ -53,8 +51,6 @@ class Gravity(Effect):
         amplitude = theta["gravity_amplitude"]
         if amplitude == 0.0:
             return 0.0
-        if model.kind == SLIDE:
-            return amplitude
         return amplitude * np.sin(self._angle(model) - theta["gravity_angle"])
 
     def load(self, model, theta):
@@ -64,9 +60,6 @@ class Gravity(Effect):
         return self._torque(model, theta) if model.kind == TESTBED else 0.0
 
     def starts(self, model, theta):
-        if model.kind == SLIDE:
-            coef = linear_starts(model, theta, [np.ones(len(model.data.t))])
-            return ([] if coef is None else [{"gravity_amplitude": float(coef[0])}]), ("gravity_angle",)
         if model.kind == TESTBED:  # on the lever: through the transmitted torque, not a linear start
             return [{"gravity_amplitude": a, "gravity_angle": q0} for a in (0.02, 0.05)
                     for q0 in np.linspace(-math.pi, math.pi, 8, endpoint=False)], ()
@@ -78,22 +71,18 @@ class Gravity(Effect):
                  "gravity_angle": float(math.atan2(coef[1], coef[0]))}], ()
 
     def identifiable(self, model, theta):
-        if model.kind == SLIDE:
-            return None
         span = float(np.ptp(self._angle(model)))
         if span < MIN_RANGE_RAD:
             return f"the joint turns through {span:.3g} rad (needs {MIN_RANGE_RAD:g} rad)"
         return None
 
     def signature_signal(self, model, theta):
-        return np.ones(len(model.data.t)) if model.kind == SLIDE else np.sin(self._angle(model))
+        return np.sin(self._angle(model))
 
     def realise(self, values, rig):
         amplitude, angle = values["gravity_amplitude"], values.get("gravity_angle", 0.0)
         if rig.model == "testbed":
             return Realisation(lever_load=lambda q: amplitude * math.sin(q - angle))
-        if rig.joint == SLIDE:
-            return Realisation(load=lambda q, qd, t: amplitude)
         return Realisation(load=lambda q, qd, t: amplitude * math.sin(q - angle))
 
     def draw(self, rig, rng):
@@ -101,8 +90,6 @@ class Gravity(Effect):
             return {"gravity_amplitude": float(rng.uniform(*TESTBED_RANGE_NM)),
                     "gravity_angle": float(rng.uniform(-math.pi, math.pi))}
         level = rig.rigid["coulomb"] * float(rng.uniform(*RIGID_RANGE_OF_COULOMB))
-        if rig.joint == SLIDE:
-            return {"gravity_amplitude": level * (1.0 if rng.random() < 0.5 else -1.0), "gravity_angle": 0.0}
         return {"gravity_amplitude": level, "gravity_angle": float(rng.uniform(-math.pi, math.pi))}
 
 

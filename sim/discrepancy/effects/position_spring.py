@@ -46,6 +46,15 @@ class PositionSpring(Effect):
             return f"the position spans {span:.3g} ({steps:.0f} encoder steps; needs {MIN_SPAN_STEPS})"
         return None
 
+    def simpler(self, model, theta):
+        rest, position = theta["spring_rest_position"], model.data.position
+        low, high = float(position.min()), float(position.max())
+        if theta["spring_stiffness"] > 0.0 and not low <= rest <= high:
+            unit = self.param("spring_rest_position").unit(model.rig.joint)
+            return "constant_effort", (f"its rest position {rest:.4g} {unit} lies outside the motion [{low:.4g}, "
+                                       f"{high:.4g}] {unit}")
+        return None
+
     def signature_signal(self, model, theta):
         return model.data.position
 

@@ -21,6 +21,7 @@ class TransportDelay(Effect):
                     valid=(0.0, MAX_DELAY_S)),)
     signature = "command rate (time shift)"
     order = 41
+    any_size = True  # a dead time matters to a controller whatever effort it leaves unexplained
 
     def bounds(self, key, scale, theta):
         return 0.0, min(MAX_DELAY_S, MAX_DELAY_OF_DURATION * scale.duration)

@@ -176,7 +176,7 @@ def test_a_modest_gain_in_a_few_events_needs_the_full_test_and_a_large_one_does_
 
 def test_baseline_effect_must_move_its_parameter_to_count():
     """A baseline effect with another value counts only if the value moves by min_parameter_change; new ones always."""
-    before = {"coulomb": 0.09, "breakaway": 0.13, "stribeck_velocity": 0.05, "delay": 0.0, "asymmetry": 0.0}
+    before = {"coulomb": 0.09, "breakaway": 0.13, "stribeck_velocity": 0.05, "delay": 0.0, "constant_effort": 0.0}
     change = AnalysisConfig().min_parameter_change
     assert not moved_enough("coulomb_friction", before, {**before, "coulomb": 0.09 * (1 + 0.5 * change)}, change)
     assert moved_enough("coulomb_friction", before, {**before, "coulomb": 0.09 * (1 - 1.5 * change)}, change)
@@ -184,7 +184,7 @@ def test_baseline_effect_must_move_its_parameter_to_count():
                         change)
     # a zero baseline value (no dead time on the rig) or an added effect has nothing to move from
     assert moved_enough("transport_delay", before, {**before, "delay": 1e-6}, change)
-    assert moved_enough("asymmetric_friction", before, {**before, "asymmetry": 1e-6}, change)
+    assert moved_enough("constant_effort", before, {**before, "constant_effort": 1e-6}, change)
 
 
 def test_native_cogging_has_the_amplitude_and_period_the_surrogate_uses():
@@ -348,8 +348,8 @@ def test_cli_reports_json_and_an_extended_rig_that_the_simulator_runs(tmp_path, 
     cli.main([str(log_path), "--rig", str(rig_path), "--json", str(out_json), "--save-rig", str(out_rig),
               "--workers", "1", "--plot", str(tmp_path / "fig")])
     data = json.loads(out_json.read_text())
-    assert set(data) == {"baseline", "findings", "tentative", "verdict", "unexplained", "rejected", "logs", "signal",
-                         "units", "run"}
+    assert set(data) == {"baseline", "findings", "tentative", "verdict", "unexplained", "rejected", "logs", "final",
+                         "signal", "units", "run"}
     assert data["verdict"] == "found"
     assert set(data["findings"][0]) == {"effect", "kind", "parameters", "rmse_heldout_before", "rmse_heldout_after",
                                         "gain", "evidence"}

@@ -24,7 +24,7 @@ import pytest
 from models.gim8108_testbed.derived import derive
 from sim.discrepancy.effects import EFFECTS
 from sim.discrepancy.model import Surrogate
-from sim.discrepancy.rig import Rig, rig_from_dict
+from sim.discrepancy.rig import Rig, RigError, rig_from_dict
 from sim.discrepancy.signals import AnalysisConfig, prepare
 from sim.discrepancy.simulate import run_rigid, run_testbed, sensor_reading
 from sim.logio import SlideRunLog
@@ -185,16 +185,61 @@ def test_stribeck_friction_falls_from_fs_to_fc_as_exp_of_minus_v_over_vs_squared
 
 
 @pytest.mark.parametrize("direction", [1, -1])
-def test_asymmetric_friction_levels_differ_by_delta_between_directions(direction):
-    """Levels F_c + Δ/2 moving forward, F_c - Δ/2 moving back: u = m·q̈ + F_c + Δ/2 or m·q̈ - (F_c - Δ/2)."""
+def test_constant_effort_is_friction_levels_that_differ_by_twice_it_between_directions(direction):
+    """Levels F_c + Δ/2 moving forward, F_c - Δ/2 moving back are F_c·sign(v) plus the constant c = Δ/2:
+    u = m·q̈ + F_c + Δ/2 or m·q̈ - (F_c - Δ/2)."""
     fc, delta, t = 0.3, 0.4, times()
     base = ONE_WAY["hinge"]
     motion = Sines(direction * base.ramp, tuple((direction * a, f, p) for a, f, p in base.parts))
     friction = fc + delta / 2 if direction > 0 else -(fc - delta / 2)
     log = rigid_log("hinge", t, motion.q(t), J_HINGE * motion.a(held(t)) + friction)
     rig = rigid_rig("hinge", J_HINGE, {"coulomb": fc, "viscous": 0.0},
-                    effects=(effect("asymmetric_friction", asymmetry=delta),))
-    assert_explains(log, rig, {"asymmetry": 1.1 * delta}, {"asymmetry": -delta})
+                    effects=(effect("constant_effort", constant_effort=delta / 2),))
+    assert_explains(log, rig, {"constant_effort": 0.55 * delta}, {"constant_effort": -delta / 2})
+
+
+def test_constant_effort_on_a_slide_needs_c_whatever_the_motion():
+    """u = m·q̈ + c on a slide swinging both ways (gravity along an incline, a steady pull)."""
+    c, t = -2.0, times()
+    log = rigid_log("slide", t, SLIDE_SWING.q(t), M_SLIDE * SLIDE_SWING.a(held(t)) + c)
+    rig = rigid_rig("slide", M_SLIDE, constant_effort=c)
+    assert_explains(log, rig, {"constant_effort": 1.1 * c}, {"constant_effort": -c})
+
+
+def test_record_offsets_take_each_records_own_zero_out_of_the_effort():
+    """Two records of one motion whose logged effort carries another zero each (+0.2 and -0.3 N·m): with
+    record_offsets the surrogate explains both and returns those zeros; one shared constant cannot."""
+    t = times()
+    needed = J_HINGE * SWING.a(held(t))
+    zeros = (0.2, -0.3)
+    first, second = (rigid_log("hinge", t, SWING.q(t), needed + z) for z in zeros)
+    rig = rigid_rig("hinge", J_HINGE)
+    from sim.discrepancy.analysis import Source, join_and_prepare
+
+    sources = [Source("a", "estimation", first), Source("b", "estimation", second)]
+    model = Surrogate(join_and_prepare(sources, rig, CONFIG)[3], rig, CONFIG)
+    command = math.sqrt(np.mean(needed**2))
+
+    def misfit_of(theta: dict) -> float:
+        r = model.residuals({**model.theta0, **theta})["effort"]
+        ok = (model.data.fit | model.data.held) & np.isfinite(r)
+        return math.sqrt(np.mean(r[ok] ** 2)) / command
+
+    assert misfit_of({"record_offsets": 1.0}) < SURROGATE_TOLERANCE
+    assert model.record_offsets({**model.theta0, "record_offsets": 1.0})["effort"] == pytest.approx(zeros, abs=2e-3)
+    assert misfit_of({"constant_effort": float(np.mean(zeros))}) > 50 * SURROGATE_TOLERANCE
+    assert model.record_offsets(model.theta0) == {}
+
+
+def test_record_offsets_leave_the_simulated_rig_alone():
+    """The records' zeros are how the records were taken: a rig carrying the effect simulates exactly as one
+    without it."""
+    rig = rigid_rig("hinge", J_HINGE, {"coulomb": 0.1, "viscous": 0.02})
+    with_zeros = rigid_rig("hinge", J_HINGE, {"coulomb": 0.1, "viscous": 0.02},
+                           effects=(effect("record_offsets", record_offsets=1.0),))
+    command = lambda k, s: 0.5 * math.sin(0.01 * k)  # noqa: E731
+    a, b = run_rigid(rig, command, 500), run_rigid(with_zeros, command, 500)
+    np.testing.assert_array_equal(a.columns["q"], b.columns["q"])
 
 
 def test_quadratic_drag_needs_c_v_abs_v():
@@ -246,20 +291,20 @@ def test_transport_delay_shifts_the_command_by_d():
                     {"delay": d + 0.5 * DT})  # the last: the command placed at t_k instead of its hold's centre
 
 
-@pytest.mark.parametrize("joint", ["hinge", "slide"])
-def test_gravity_needs_a_sin_q_minus_q0_on_a_hinge_and_a_on_a_slide(joint):
-    """Hinge: u = m·q̈ + A·sin(q - q0); slide: u = m·q̈ + A (q0 irrelevant)."""
+def test_gravity_needs_a_sin_q_minus_q0_on_a_hinge():
+    """u = m·q̈ + A·sin(q - q0)."""
     t = times()
-    if joint == "hinge":
-        a, q0, m, motion = 0.4, 0.5, J_HINGE, SWING
-        gravity = a * np.sin(motion.q(held(t)) - q0)
-        perturbed = ({"gravity_amplitude": 1.1 * a}, {"gravity_angle": q0 + 0.1})
-    else:
-        a, q0, m, motion = -2.0, 0.0, M_SLIDE, SLIDE_SWING
-        gravity = a
-        perturbed = ({"gravity_amplitude": 1.1 * a}, {"gravity_amplitude": -a})
-    rig = rigid_rig(joint, m, effects=(effect("gravity", gravity_amplitude=a, gravity_angle=q0),))
-    assert_explains(rigid_log(joint, t, motion.q(t), m * motion.a(held(t)) + gravity), rig, *perturbed)
+    a, q0 = 0.4, 0.5
+    gravity = a * np.sin(SWING.q(held(t)) - q0)
+    rig = rigid_rig("hinge", J_HINGE, effects=(effect("gravity", gravity_amplitude=a, gravity_angle=q0),))
+    assert_explains(rigid_log("hinge", t, SWING.q(t), J_HINGE * SWING.a(held(t)) + gravity), rig,
+                    {"gravity_amplitude": 1.1 * a}, {"gravity_angle": q0 + 0.1})
+
+
+def test_a_slide_states_its_constant_force_as_constant_effort_not_gravity():
+    with pytest.raises(RigError, match="constant_effort"):
+        rig_from_dict({"model": "rigid-joint", "joint": "slide", "mass_kg": 2.0, "effort_gain": 1.0,
+                       "gravity_amplitude": -2.0})
 
 
 def test_position_spring_needs_k_q_minus_q0():
@@ -625,13 +670,16 @@ def test_mujoco_stribeck_sliding_velocity_balances_the_stribeck_curve(ratio):
     assert final_velocity(rig, u, 2000)[1] == pytest.approx(v, rel=1e-4)
 
 
+@pytest.mark.parametrize("carried_by", ["effect", "rig"])
 @pytest.mark.parametrize("u", [0.5, -0.5])
-def test_mujoco_asymmetric_offset_accelerates_at_u_minus_half_delta_over_j(u):
-    """A frictionless hinge with asymmetry Δ: q̈ = (u - Δ/2)/J."""
-    delta = 0.2
-    rig = rigid_rig("hinge", J_HINGE, effects=(effect("asymmetric_friction", asymmetry=delta),))
+def test_mujoco_constant_effort_accelerates_at_u_minus_c_over_j(u, carried_by):
+    """A frictionless hinge needing the constant c: q̈ = (u - c)/J, whether an added effect or the rig's own field
+    carries it."""
+    c = 0.1
+    rig = (rigid_rig("hinge", J_HINGE, effects=(effect("constant_effort", constant_effort=c),))
+           if carried_by == "effect" else rigid_rig("hinge", J_HINGE, constant_effort=c))
     t, v = final_velocity(rig, u)
-    assert v == pytest.approx((u - delta / 2) / J_HINGE * t, rel=EXACT)
+    assert v == pytest.approx((u - c) / J_HINGE * t, rel=EXACT)
 
 
 def test_mujoco_drag_reaches_terminal_velocity_sqrt_u_over_c():
@@ -690,14 +738,13 @@ def test_mujoco_hinge_gravity_settles_at_q0_plus_asin_u_over_a(carried_by):
 
 
 @pytest.mark.parametrize("carried_by", ["effect", "rig"])
-def test_mujoco_slide_gravity_accelerates_at_u_minus_a_over_m(carried_by):
-    """A slide needs the constant A: q̇ = ((u - A)/m)·t, whether an added effect or the rig's own field carries it
-    (as on the hinge)."""
-    a, u = -2.0, 3.0
-    rig = (rigid_rig("slide", M_SLIDE, effects=(effect("gravity", gravity_amplitude=a, gravity_angle=0.0),))
-           if carried_by == "effect" else rigid_rig("slide", M_SLIDE, gravity_amplitude=a))
+def test_mujoco_slide_constant_effort_accelerates_at_u_minus_c_over_m(carried_by):
+    """A slide needing the constant c: q̇ = ((u - c)/m)·t."""
+    c, u = -2.0, 3.0
+    rig = (rigid_rig("slide", M_SLIDE, effects=(effect("constant_effort", constant_effort=c),))
+           if carried_by == "effect" else rigid_rig("slide", M_SLIDE, constant_effort=c))
     t, v = final_velocity(rig, u)
-    assert v == pytest.approx((u - a) / M_SLIDE * t, rel=EXACT)
+    assert v == pytest.approx((u - c) / M_SLIDE * t, rel=EXACT)
 
 
 def test_mujoco_spring_step_response_is_the_damped_oscillator():
@@ -820,7 +867,7 @@ def test_mujoco_testbed_rolloff_then_the_motor_map_give_the_locked_torque(u):
 
 MOTOR_SIDE_LOADS = {
     # name: (parameters, the torque the joint needs at the final state)
-    "asymmetric_friction": ({"asymmetry": 0.3}, lambda s: 0.15),
+    "constant_effort": ({"constant_effort": 0.15}, lambda s: 0.15),
     "position_spring": ({"spring_stiffness": 50.0, "spring_rest_position": -0.01},
                         lambda s: 50.0 * (s["q_motor"] + 0.01)),
     "cogging": ({"cogging_amplitude": 0.05, "cogging_period": TWO_PI / (8 * 21), "cogging_phase": 1.2},
@@ -832,7 +879,7 @@ MOTOR_SIDE_LOADS = {
 @pytest.mark.parametrize("name", list(MOTOR_SIDE_LOADS))
 @pytest.mark.parametrize("u", [3.0, -3.0])
 def test_mujoco_testbed_joint_loads_shift_the_locked_torque(name, u):
-    """Steady locked torque τ(u) - (the load the joint needs): Δ/2 (asymmetry), k·(q_m - x0) (spring),
+    """Steady locked torque τ(u) - (the load the joint needs): c (constant effort), k·(q_m - x0) (spring),
     -A·sin(2πq_m/P + φ) (the dcmotor's cogging, 21 poles), A·sin(q - q0) (gravity on the lever)."""
     params, needed = MOTOR_SIDE_LOADS[name]
     rig = rig_of_testbed("locked", LOW_FRICTION, (effect(name, **params),))
@@ -915,9 +962,13 @@ CLOSED_FORM_TESTS: dict[str, tuple[str, ...]] = {
     "stribeck_friction": ("test_stribeck_friction_falls_from_fs_to_fc_as_exp_of_minus_v_over_vs_squared",
                           "test_mujoco_stribeck_friction_holds_below_fs_breaks_away_above_and_slides_on_fc",
                           "test_mujoco_stribeck_sliding_velocity_balances_the_stribeck_curve"),
-    "asymmetric_friction": ("test_asymmetric_friction_levels_differ_by_delta_between_directions",
-                            "test_mujoco_asymmetric_offset_accelerates_at_u_minus_half_delta_over_j",
-                            "test_mujoco_testbed_joint_loads_shift_the_locked_torque"),
+    "constant_effort": ("test_constant_effort_is_friction_levels_that_differ_by_twice_it_between_directions",
+                        "test_constant_effort_on_a_slide_needs_c_whatever_the_motion",
+                        "test_mujoco_constant_effort_accelerates_at_u_minus_c_over_j",
+                        "test_mujoco_slide_constant_effort_accelerates_at_u_minus_c_over_m",
+                        "test_mujoco_testbed_joint_loads_shift_the_locked_torque"),
+    "record_offsets": ("test_record_offsets_take_each_records_own_zero_out_of_the_effort",
+                       "test_record_offsets_leave_the_simulated_rig_alone"),
     "quadratic_drag": ("test_quadratic_drag_needs_c_v_abs_v",
                        "test_mujoco_drag_reaches_terminal_velocity_sqrt_u_over_c"),
     "load_dependent_friction": ("test_load_dependent_friction_needs_mu_abs_tau_against_the_motion",
@@ -934,9 +985,8 @@ CLOSED_FORM_TESTS: dict[str, tuple[str, ...]] = {
                                      "test_mujoco_testbed_rolloff_then_the_motor_map_give_the_locked_torque"),
     "transport_delay": ("test_transport_delay_shifts_the_command_by_d",
                         "test_mujoco_dead_time_delays_a_command_step_by_d"),
-    "gravity": ("test_gravity_needs_a_sin_q_minus_q0_on_a_hinge_and_a_on_a_slide",
+    "gravity": ("test_gravity_needs_a_sin_q_minus_q0_on_a_hinge",
                 "test_mujoco_hinge_gravity_settles_at_q0_plus_asin_u_over_a",
-                "test_mujoco_slide_gravity_accelerates_at_u_minus_a_over_m",
                 "test_mujoco_testbed_joint_loads_shift_the_locked_torque"),
     "position_spring": ("test_position_spring_needs_k_q_minus_q0",
                         "test_mujoco_spring_step_response_is_the_damped_oscillator",

@@ -30,7 +30,7 @@ TOLERANCES = {
     "viscous_friction": {"viscous": (TIGHT, "relative")},
     # F_s and v_s trade off along the low-speed curve (measured errors 35 % on F_s at 8 s): a 50 % tolerance
     "stribeck_friction": {"breakaway": (0.5, "relative"), "stribeck_velocity": (0.5, "relative")},
-    "asymmetric_friction": {"asymmetry": (TIGHT, "relative")},
+    "constant_effort": {"constant_effort": (TIGHT, "relative")},
     "load_dependent_friction": {"load_coefficient": (TIGHT, "relative")},
     "backlash": {"backlash_width": (TIGHT, "relative")},
     "cogging": {"cogging_amplitude": (TIGHT, "relative"), "cogging_period": (1e-9, "relative")},
@@ -54,10 +54,10 @@ TESTBED_NEW = {
 CASES = {effect: (REVEALING_EXPERIMENT[effect], tol) for effect, tol in {**TOLERANCES, **TESTBED_NEW}.items()}
 SLIDE_CASES = {
     "coulomb_friction": {"coulomb": (TIGHT, "relative")},
-    "gravity": {"gravity_amplitude": (TIGHT, "relative")},
+    "constant_effort": {"constant_effort": (TIGHT, "relative")},
 }
-# Rigid hinge and slide: every effect that applies to a rigid joint (asymmetric friction is gravity's constant
-# force on a slide), with the tolerances above; the new ones:
+# Rigid hinge and slide: every effect that applies to a rigid joint (gravity: a hinge's; a slide's is a constant
+# effort), with the tolerances above; the new ones:
 RIGID_TOLERANCES = {
     "inertia": {"inertia": (TIGHT, "relative")},
     "effort_gain": {"effort_gain": (0.01, "absolute")},
@@ -67,7 +67,7 @@ RIGID_TOLERANCES = {
     # stick-slip transitions, whose samples do not count (measured on the MuJoCo moves: F_s -23 to +12 %, v_s -82
     # to +9 %; on the independent simulator's point-to-point logs both within 2 %)
     "stribeck_friction": {"breakaway": (0.3, "relative")},
-    "asymmetric_friction": {"asymmetry": (0.1, "relative")},
+    "constant_effort": {"constant_effort": (0.1, "relative")},
     "quadratic_drag": {"drag_coefficient": (0.1, "relative")},
     "cogging": {"cogging_amplitude": (0.1, "relative"), "cogging_period": (0.01, "relative")},
     "torque_constant_nonlinearity": {"torque_rolloff": (0.1, "relative")},
@@ -78,7 +78,7 @@ RIGID_TOLERANCES = {
     "drivetrain_compliance": {"compliant_fraction": (0.2, "relative"), "resonance_frequency": (0.1, "relative")},
 }
 RIGID_CASES = [(effect, joint) for effect in RIGID_TOLERANCES for joint in ("hinge", "slide")
-               if not (effect == "asymmetric_friction" and joint == "slide")]
+               if not (effect == "gravity" and joint == "slide")]
 # the swing reveals every rigid effect but Stribeck friction, which needs the low speeds of point-to-point moves
 RIGID_EXPERIMENT = {"stribeck_friction": "{joint}_moves"}
 
@@ -108,7 +108,7 @@ def test_every_effect_is_named_first_and_recovered(effect, seed):
 @pytest.mark.parametrize("seed", SEEDS)
 @pytest.mark.parametrize("effect", list(SLIDE_CASES))
 def test_slide_rig_effects_are_found(effect, seed):
-    """On a rigid slide joint, hidden Coulomb friction, gravity and dead time are found and recovered."""
+    """On a rigid slide joint, hidden Coulomb friction and a constant force are found and recovered."""
     log, rig, truth = hidden_effect_log("slide", [effect], seed, DURATION_S)
     _check(analyse(log, rig), truth, effect, SLIDE_CASES[effect])
 

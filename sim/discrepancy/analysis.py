@@ -74,9 +74,11 @@ CHANNEL_MEANING = {
     "sensor": "torque sensor minus the transmitted torque the model predicts it reads",
     "kinematic": "motor angle minus lever angle minus flexure twist, against the backlash model",
 }
-# [samples] with no time convention stated, a dead time found beyond the rig's of at least one sample less this is
-# read as logs stamped in the 'command' convention (one sample of it; :func:`final_model`)
-CONVENTION_MARGIN = 0.25
+# [samples] with no time convention stated, a dead time found beyond the rig's within this range is read as logs
+# stamped in the 'command' convention (one sample of it; the rest judged as a dead time: :func:`final_model`); a
+# longer one is a dead time. Below one sample the reading in that convention stands for at most a quarter sample
+# more than the data show; above, for exactly what they show.
+CONVENTION_RANGE = (0.75, 1.5)
 STAND_IN_GAIN = 1.0 / 3.0  # beside an unexplained remainder, a finding explaining less is a stand-in
 LISTED_REJECTED_GAIN = 0.10  # refused candidates with at least this held-out gain are listed with their rule
 WIDEN = 10.0  # a free parameter that ends at a bound is re-fitted with bounds this many times as wide
@@ -368,8 +370,9 @@ def analyse(log: RunLog, rig: Rig, config: AnalysisConfig | None = None, *, prog
     # 3. diagnostics and identifiability
     t = time.perf_counter()
     signatures = _signatures(model, theta, residuals_baseline)
+    remaining = [e.name for e in model.effects]
     not_identifiable = {e.name: why for e in model.effects if (why := e.identifiable(model, theta))}
-    candidates = [e.name for e in model.effects if e.name not in not_identifiable]
+    candidates = [name for name in remaining if name not in not_identifiable]
     timings["diagnostics_s"] = time.perf_counter() - t
 
     # 4. forward selection, each round judged against the current (jointly fitted) model
@@ -405,7 +408,11 @@ def analyse(log: RunLog, rig: Rig, config: AnalysisConfig | None = None, *, prog
                   f"ΔBIC {best.delta_bic:.1f})", progress)
         accepted = tuple(dict.fromkeys(EFFECTS[best.effect].keys + accepted))
         current, current_score = best.fit.theta, best.score
-        candidates = [c for c in candidates if c != best.effect]
+        # what the logs can reveal is judged against the current model: a Stribeck drop shows against a friction
+        # level found in an earlier round
+        remaining = [name for name in remaining if name != best.effect]
+        not_identifiable = {name: why for name in remaining if (why := EFFECTS[name].identifiable(model, current))}
+        candidates = [name for name in remaining if name not in not_identifiable]
         while (pruned := _prune(model, findings, current, current_score, accepted, scales)) is not None:
             finding, current, current_score, accepted, reason = pruned
             findings.remove(finding)
@@ -523,10 +530,10 @@ def final_model(first: Stage, read: Callable[[Rig], Stage], findings: list[Findi
 
     1. With an unexplained remainder, effects on the effort that explain little are tentative
        (:func:`_confident`).
-    2. Logs whose time convention nobody states, with a dead time found beyond the rig's of at least one sample
-       less CONVENTION_MARGIN, are read in the 'command' convention: one sample of the dead time is the convention
-       (the saved rig states it), and what remains beyond it is a dead time only if it passes the significance
-       rules by itself.
+    2. Logs whose time convention nobody states, with a dead time found beyond the rig's within CONVENTION_RANGE
+       samples, are read in the 'command' convention: one sample of the dead time is the convention (the saved
+       rig states it), and what remains beyond it is a dead time only if it passes the significance rules by
+       itself. Either reading saves the same total dead time above one sample.
     3. The confident findings are re-fitted without the others; one that then ends at a bound of its range is
        tentative too, and the rest re-fitted again.
     4. The rig with them is written as TOML, read back, and read on the logs as an analysis of it begins: every
@@ -543,7 +550,8 @@ def final_model(first: Stage, read: Callable[[Rig], Stage], findings: list[Findi
     extra = current["delay"] - theta0["delay"]
     hold = first.data.hold_s
     unstated = all(c["from"] == ASSUMED_CONVENTION for c in first.conventions)
-    if delay is not None and unstated and extra >= (1.0 - CONVENTION_MARGIN) * hold:
+    low, high = CONVENTION_RANGE
+    if delay is not None and unstated and low * hold <= extra <= high * hold:
         stage = read(replace(first.rig, time_convention=COMMAND))
         theta = {**stage.theta, **{k: v for k, v in current.items() if k not in stage.keys}}
         theta["delay"] = max(theta0["delay"], current["delay"] - hold)

@@ -93,9 +93,11 @@ class StribeckFriction(Effect):
     def _too_small(self, model, theta):
         """Why a breakaway PROBE_LEVEL x the sliding level, at a Stribeck velocity up to PROBE_VELOCITY x the log's
         top speed, would not change the effort the log can show by the smallest reportable change (or None)."""
+        if not theta["coulomb"] > 0.0:
+            return "the model has no sliding friction level yet to refer a breakaway to"
         base = model.residuals(theta)["effort"]
         counted = (model.data.fit | model.data.held) & np.isfinite(base)
-        level = max(theta["coulomb"], 1e-12)
+        level = theta["coulomb"]
         largest = 0.0
         low, _ = LOW_SPEED_RANGE
         for vs in model.scale.velocity * np.geomspace(3 * low, PROBE_VELOCITY, 4):
@@ -104,10 +106,9 @@ class StribeckFriction(Effect):
             largest = max(largest, float(np.sqrt(np.mean((probe[ok] - base[ok]) ** 2))) if ok.any() else 0.0)
         floor = model.config.min_effort_change * model.command_rms
         if largest < floor:
-            return (f"a breakaway {PROBE_LEVEL:g} x the sliding level with a Stribeck velocity up to "
+            return (f"a breakaway {PROBE_LEVEL:g} x the sliding level ({level:.4g}) with a Stribeck velocity up to "
                     f"{100 * PROBE_VELOCITY:g} % of the top speed would change the effort of the samples that count "
-                    f"by {largest:.3g} RMS at most, below the smallest reportable change {floor:.3g}: the joint "
-                    f"passes low speeds only next to stick-slip transitions")
+                    f"by {largest:.3g} RMS at most, below the smallest reportable change {floor:.3g}")
         return None
 
     def signature_signal(self, model, theta):

@@ -73,6 +73,7 @@ RIGID_STICK_BAND_FACTOR = 2.0  # stick-slip transitions: from the velocity low-p
 TESTBED_STICK_FRACTION_OF_STRIBECK = 0.2
 REVERSAL_WINDOW_S = 0.02  # the presliding signature: 20 ms after each motion reversal
 NUISANCE_KEYS = ("kin_offset",)  # fitted alongside, never reported as an effect
+RESOLUTION_NOISE_SEED = 0  # the fixed draw of the quantisation error behind Surrogate.resolution_floor
 
 
 def channel_unit(channel: str, joint: str) -> str:
@@ -194,6 +195,7 @@ class Surrogate:
             self.channels.append("kinematic")
         self.command_rms = rms(d.filt(d.u_full)[d.held | d.fit])  # [N·m | N] the command in the analysis band
         self.records = self._records()
+        self.resolution_floor = self._resolution_floor()
         peak = self.theta0["peak_effort"]
         self.scale = Scale(
             effort=max(float(np.abs(d.u_full).max()), peak if math.isfinite(peak) else 0.0, 1e-12),
@@ -264,6 +266,20 @@ class Surrogate:
         for t0 in changes:
             out[(self.data.t >= t0) & (self.data.t < t0 + REVERSAL_WINDOW_S)] = 1.0
         return out
+
+    def _resolution_floor(self) -> float:
+        """The effort error the position encoder's resolution alone leaves in the balance [N·m | N] (RMS): the
+        rig's inertia and viscous terms of a quantisation error uniform over one step (a fixed draw), through the
+        analysis band's filter and derivatives. Twice differentiated, a coarse encoder's steps are a noise that no
+        effect explains and that some (an inertia, a compliance) can fit."""
+        d = self.data
+        if not d.position_resolution > 0.0:
+            return 0.0
+        rng = np.random.default_rng(RESOLUTION_NOISE_SEED)
+        error = d.filt_full(rng.uniform(-0.5, 0.5, len(d.t_full)) * d.position_resolution)
+        velocity = d.derivative(error)
+        term = self.theta0["inertia"] * d.derivative(velocity) + self.theta0["viscous"] * velocity
+        return rms(term[d.grid][d.fit | d.held])
 
     def _records(self) -> list[tuple[np.ndarray, np.ndarray]]:
         """(its grid samples, the samples its zero is fitted on) of each joined log (record): its fit part, or its

@@ -122,7 +122,8 @@ def format_result(result: DiscrepancyResult) -> str:
                  + f"; effort error in a typical {result.baseline['config']['block_s']:g} s block (median) "
                  f"{100 * s.remainder_fraction:.2g} % of the command's RMS"
                  + f"; a generic model of it explains {max(100 * s.generic_gain, 0.0):.1f} %; Ljung-Box p "
-                 f"{s.whiteness.get('p_value', float('nan')):.3g}")
+                 f"{s.whiteness.get('p_value', float('nan')):.3g}; the position encoder's resolution alone leaves "
+                 f"{s.resolution_floor:.3g} {result.units['effort']}")
     lines.append("Relative effort prediction error ‖F - F̂‖/‖F‖ (F the command in the analysis band):")
     for entry in result.logs:
         e = entry["relative_effort_error"]

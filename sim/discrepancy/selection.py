@@ -27,8 +27,10 @@ fails is recorded as the reason (``Candidate.rejected_by``):
     an effect on the effort changes the model's held-out effort prediction by at least ``min_effort_change`` of
     the command (RMS): below that, a discrepancy is within what the surrogate resolves (its mismatch with a
     simulated plant of the same physics is 0.1-0.4 % of the command), however much of a small residual it
-    explains. A dead time is exempt (:attr:`Effect.any_size <sim.discrepancy.effects.base.Effect.any_size>`): it
-    matters to a controller whatever effort it leaves;
+    explains; nor below the effort error the position encoder's resolution leaves, twice differentiated in the
+    band (a coarse encoder's steps are a noise that an inertia or a compliance can fit). A dead time needs only
+    the latter (:attr:`Effect.any_size <sim.discrepancy.effects.base.Effect.any_size>`): it matters to a
+    controller whatever effort it leaves;
 ``events``
     the improvement holds across the held-out part. The per-sample drop of the squared residuals
     (channels weighted by their mean square before) is summed per block of ``block_s``; the mean block drop,
@@ -127,6 +129,13 @@ class Candidate:
                 "rejected_by": self.rejected_by, "at_bound": self.at_bound, "parameters": self.parameters,
                 "held_out_parameters": self.held_out_parameters,
                 "model_log_parameters": self.model_log_parameters, "note": self.note, "seconds": self.seconds}
+
+
+def smallest_change(model: Surrogate) -> float:
+    """The smallest change of the held-out effort prediction an effect on the effort must make (rule 'size')
+    [N·m | N]: ``min_effort_change`` of the command's RMS, and the effort error the position encoder's resolution
+    alone leaves (:attr:`Surrogate.resolution_floor`)."""
+    return max(model.config.min_effort_change * model.command_rms, model.resolution_floor)
 
 
 def held_out_score(model: Surrogate, theta: dict[str, float], mask: np.ndarray | None = None) -> ChannelScore:
@@ -278,7 +287,8 @@ def fit_candidate(model: Surrogate, effect: str, theta: dict[str, float], accept
             simpler = None
     checks = {"bound": not at_bound, "simpler": simpler is None, "bic": delta < -cfg.min_ic_drop,
               "gain": gain >= cfg.min_relative_gain,
-              "size": spec.channel != "effort" or spec.any_size or change >= cfg.min_effort_change * model.command_rms,
+              "size": spec.channel != "effort" or change >= (model.resolution_floor if spec.any_size
+                                                              else smallest_change(model)),
               "events": passes_events(gain, z, share, cfg.min_event_z),
               "moved": moved_enough(effect, theta, outcome.theta, cfg.min_parameter_change)}
     rejected = next((rule for rule in RULES if not checks.get(rule, True)), None)

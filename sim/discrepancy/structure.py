@@ -20,8 +20,9 @@ candidate effect that would explain a third or more of the residual but was refu
 bound of the rig's plausible range or drift across the log (non-stationary): the nearest library effect is then
 named as not fitting, not as the finding (unless it only scales the whole balance, as an effort gain at its
 bound does). A remainder below the smallest reportable change (``min_effort_change`` of the command) is not
-unexplained, whatever its shape. The whiteness of the held-out residual (Ljung-Box, at the band's rate of
-independent samples) is reported beside.
+unexplained, whatever its shape, nor is one within RESOLUTION_MULTIPLE x the effort error the position encoder's
+resolution alone leaves (:attr:`Surrogate.resolution_floor <sim.discrepancy.model.Surrogate.resolution_floor>`).
+The whiteness of the held-out residual (Ljung-Box, at the band's rate of independent samples) is reported beside.
 """
 
 from __future__ import annotations
@@ -53,6 +54,7 @@ NEAREST_GAIN = 1.0 / 3.0  # a refused candidate explaining this much makes the r
 UNEXPLAINED_RULES = ("bound", "stationary")  # ... when refused for these
 TERM_SHOWN_GAIN = 0.5  # a basis term is named if alone it gains this share of the whole basis's gain ...
 TERMS_SHOWN = 2  # ... or is among the strongest two
+RESOLUTION_MULTIPLE = 1.5  # a remainder within this x the encoder's resolution floor is that floor's noise
 
 PHRASES = {
     "velocity": "effort error grows with the velocity",
@@ -98,6 +100,8 @@ class Structure:
         Ljung-Box statistic and p-value of the held-out effort residual.
     refused : list of str
         Nearest library effects that would explain much but were refused, and why.
+    resolution_floor : float
+        The effort error the position encoder's resolution alone leaves [channel unit] (RMS).
     """
 
     unexplained: bool
@@ -109,12 +113,13 @@ class Structure:
     lines: list[dict[str, Any]] = field(default_factory=list)
     whiteness: dict[str, float] = field(default_factory=dict)
     refused: list[str] = field(default_factory=list)
+    resolution_floor: float = 0.0
 
     def to_dict(self) -> dict[str, Any]:
         return {"unexplained": self.unexplained, "description": self.description, "rmse": self.rmse,
                 "generic_gain": self.generic_gain, "remainder_fraction": self.remainder_fraction,
                 "terms": self.terms, "lines": self.lines,
-                "whiteness": self.whiteness, "refused": self.refused}
+                "whiteness": self.whiteness, "refused": self.refused, "resolution_floor": self.resolution_floor}
 
 
 def _basis(model: Surrogate, residual: np.ndarray) -> dict[str, list[np.ndarray]]:
@@ -235,9 +240,11 @@ def residual_structure(model: Surrogate, theta: dict[str, float], current: Chann
     rmse = {c: current.rmse[c] for c in current.rmse}
     typical = median_block_rms(residual[d.held], block)
     fraction = typical / model.command_rms if model.command_rms > 0 else float("nan")
-    too_large = fraction >= cfg.max_remainder
-    # below the smallest reportable change nothing material is left, whatever its shape
-    material = fraction >= cfg.min_effort_change
+    # below the smallest reportable change, or within what the position encoder's resolution leaves, nothing
+    # material is left, whatever its shape
+    resolved = typical > RESOLUTION_MULTIPLE * model.resolution_floor
+    too_large = fraction >= cfg.max_remainder and resolved
+    material = fraction >= cfg.min_effort_change and resolved
     unexplained = too_large or (material and (significant or bool(nearest)))
     if unexplained:
         unit = channel_unit("effort", model.rig.joint)
@@ -249,7 +256,8 @@ def residual_structure(model: Surrogate, theta: dict[str, float], current: Chann
                               + f"); a generic model of it explains {max(100 * gain, 0):.0f} %")
     independent = max(1, int(round(1.0 / d.independent_per_grid_sample)))
     whiteness = ljung_box(residual[d.held][::independent], min(WHITENESS_LAGS, max(1, int(d.held.sum()) // 8)))
-    return Structure(unexplained, description, rmse, gain, fraction, alone, lines, whiteness, nearest)
+    return Structure(unexplained, description, rmse, gain, fraction, alone, lines, whiteness, nearest,
+                     model.resolution_floor)
 
 
 def _locked_to_position(model: Surrogate, theta: dict[str, float], residual: np.ndarray, fit: np.ndarray,

@@ -178,7 +178,8 @@ class Effect:
     # step than the 16-bit one resolves its motion)
     revealing_experiment: ClassVar[str]
     needs_fine_motor_encoder: ClassVar[bool] = False
-    any_size: ClassVar[bool] = False  # exempt from the significance rule 'size' (a dead time matters at any size)
+    any_size: ClassVar[bool] = False  # rule 'size' asks only that it change the effort by more than the encoder's
+    # resolution leaves, not by min_effort_change of the command (a dead time matters at any size)
     explains_at_bound: ClassVar[bool] = True  # a fit at its bound is a near explanation (not: a gain that only
     # scales the whole balance)
 

@@ -307,6 +307,35 @@ def point_to_point(n: int, span: float, speed: float, seed: int, *, dwell_s: tup
     return Reference(r, rd, "point_to_point")
 
 
+def back_and_forth(n: int, span: float, speed: float, acceleration: float, *, dwell_s: float = 0.5,
+                   dt: float = CONTROL_PERIOD_S) -> Reference:
+    """Sweeps between −span and +span at a constant ``speed`` [rad/s | m/s], each with a trapezoidal velocity
+    profile (``acceleration`` [rad/s² | m/s²] at both ends; a triangle where the cruise would be shorter than
+    nothing), separated by dwells of ``dwell_s``: a friction-identification run at one speed. It starts at rest
+    at r = 0 and sweeps to +span first."""
+    t = np.arange(n) * dt
+    r = np.zeros(n)
+    rd = np.zeros(n)
+    pos, now, target = 0.0, dwell_s, span
+    while now < t[-1]:
+        distance = abs(target - pos)
+        peak = min(speed, math.sqrt(distance * acceleration))  # the triangle's peak when the cruise vanishes
+        ramp = peak / acceleration
+        move = 2 * ramp + (distance - peak * ramp) / peak
+        inside = (t >= now) & (t < now + move)
+        tau = t[inside] - now
+        up, down = np.minimum(tau, ramp), np.clip(tau - (move - ramp), 0.0, ramp)
+        travelled = (0.5 * acceleration * up**2 + peak * np.clip(tau - ramp, 0.0, move - 2 * ramp)
+                     + peak * down - 0.5 * acceleration * down**2)
+        direction = math.copysign(1.0, target - pos)
+        r[inside] = pos + direction * travelled
+        rd[inside] = direction * np.minimum(np.minimum(acceleration * tau, peak), acceleration * (move - tau))
+        r[t >= now + move] = target
+        rd[t >= now + move] = 0.0
+        pos, now, target = target, now + move + dwell_s, -target
+    return Reference(r, rd, "back_and_forth")
+
+
 # ------------------------------------------------------------------------------------------------ controllers
 
 
@@ -383,6 +412,76 @@ class CascadePPI:
         if volt == raw or (ev > 0) != (raw > 0):
             self.integral += ev * self.dt
         return self.gain * volt
+
+
+class QuantisedCommand:
+    """A controller's command as a drive register holds it: u = s·round(clip(c, −L, L)/s), c the wrapped
+    controller's command, s the register's step (a PWM duty in 1/885 of full scale: s = 1/885), L ``limit``.
+
+    ``counts(u)`` is the register's integer round(u/s).
+    """
+
+    def __init__(self, controller: Callable[[int, float], float], step: float, limit: float) -> None:
+        self.controller, self.step, self.limit = controller, step, limit
+
+    def counts(self, u: float) -> int:
+        """The register's integer for a command u [1]."""
+        return int(round(min(max(u, -self.limit), self.limit) / self.step))
+
+    def __call__(self, k: int, y: float) -> float:
+        return self.counts(self.controller(k, y)) * self.step
+
+
+class Impedance:
+    """Impedance (virtual spring-damper) control to a moving setpoint r: u = K·(r − y) + D·(ṙ − v̂), clipped at
+    ±``limit``; v̂ as in :class:`PID`. K [N·m/rad | N/m], D [N·m·s/rad | N·s/m]."""
+
+    def __init__(self, reference: Reference, stiffness: float, damping: float, limit: float, *,
+                 derivative_cutoff_hz: float = 150.0, dt: float = CONTROL_PERIOD_S) -> None:
+        self.r = reference.position.tolist()
+        self.rd = reference.velocity.tolist()
+        self.k, self.d, self.limit, self.dt = stiffness, damping, limit, dt
+        self.alpha = math.exp(-2 * math.pi * derivative_cutoff_hz * dt)
+        self.v_hat = 0.0
+        self.y_prev: float | None = None
+
+    def __call__(self, k: int, y: float) -> float:
+        if self.y_prev is not None:
+            self.v_hat = self.alpha * self.v_hat + (1 - self.alpha) * (y - self.y_prev) / self.dt
+        self.y_prev = y
+        u = self.k * (self.r[k] - y) + self.d * (self.rd[k] - self.v_hat)
+        return min(max(u, -self.limit), self.limit)
+
+
+class EnergyPump:
+    """Energy pumping on a pendulum (hinge, gravity A·sin(q − q0) about its rest angle q0): the swing's energy
+    E = ½·J·v̂² + A·(1 − cos(y − q0)) [J] is driven to a target E*(t_k) by u = clip(k_E·(E* − E), −L, L)·s,
+    s = sign(v̂) (+1 while v̂ = 0, so that a pendulum at rest is kicked); v̂ as in :class:`PID`.
+
+    ``energy_target`` holds E*(t_k) [J] per control period; J [kg·m²], A [N·m] and q0 [rad] are what the
+    controller assumes, k_E ``gain`` [N·m/J], L ``limit`` [N·m].
+    """
+
+    def __init__(self, energy_target: np.ndarray, inertia: float, amplitude: float, rest_angle: float,
+                 gain: float, limit: float, *, derivative_cutoff_hz: float = 150.0,
+                 dt: float = CONTROL_PERIOD_S) -> None:
+        self.target = [float(e) for e in energy_target]
+        self.inertia, self.amplitude, self.rest = inertia, amplitude, rest_angle
+        self.gain, self.limit, self.dt = gain, limit, dt
+        self.alpha = math.exp(-2 * math.pi * derivative_cutoff_hz * dt)
+        self.v_hat = 0.0
+        self.y_prev: float | None = None
+
+    def energy(self, y: float, v: float) -> float:
+        """E = ½·J·v² + A·(1 − cos(y − q0)) [J]."""
+        return 0.5 * self.inertia * v * v + self.amplitude * (1.0 - math.cos(y - self.rest))
+
+    def __call__(self, k: int, y: float) -> float:
+        if self.y_prev is not None:
+            self.v_hat = self.alpha * self.v_hat + (1 - self.alpha) * (y - self.y_prev) / self.dt
+        self.y_prev = y
+        u = min(max(self.gain * (self.target[k] - self.energy(y, self.v_hat)), -self.limit), self.limit)
+        return -u if self.v_hat < 0 else u
 
 
 # ------------------------------------------------------------------------------------------------- simulation

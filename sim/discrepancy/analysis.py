@@ -307,8 +307,7 @@ def read_stage(logs: tuple[RunLog, ...], names: tuple[str, ...], roles: list[str
     if refit.at_bound:
         refit = fit_keys(model, model.theta0, keys, scales, widen=WIDEN)
     score = held_out_score(model, refit.theta)
-    check_effort_balance(score.rmse["effort"], rms(data.filt(data.u_full)[data.held]),
-                         channel_unit("effort", rig.joint), "m" if rig.joint == "slide" else "rad")
+    check_effort_balance(model, refit.theta, score.rmse["effort"])
     scales = {c: rms(r[data.fit]) or 1.0 for c, r in model.residuals(refit.theta).items()}
     return Stage(rig, sources, conventions, joined, segments, factor, data, model, refit, score, scales, keys)
 

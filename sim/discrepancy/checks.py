@@ -9,7 +9,8 @@ Each check names the column, the row (spreadsheet numbering, the header is row 1
   unwraps it);
 - the fixture: a locked testbed log whose lever turns;
 - the effort balance, once the baseline is fitted (:func:`check_effort_balance`): a model that needs several
-  times the logged effort to make the logged motion (positions in degrees or millimetres, a wrong mass).
+  times the logged effort to make the logged motion because its inertial terms are out of scale (positions in
+  degrees or millimetres, a command in mN·m, a mass far off).
 
 :func:`to_hold_end` brings a log stamped in the ``command`` time convention to the ``hold_end`` convention the
 analysis uses (``docs/run_log_format.md``).
@@ -21,7 +22,9 @@ import math
 
 import numpy as np
 
+from sim.discrepancy.model import Surrogate, channel_unit
 from sim.discrepancy.rig import Rig
+from sim.discrepancy.signals import rms
 from sim.logio import row_of
 from sim.motor_torque import CurrentToTorqueMap
 from sim.runlog import HOLD_END, TIME_CONVENTIONS, RunLog
@@ -30,7 +33,8 @@ PEAK_TOLERANCE = 0.01  # commands may exceed the rig's peak effort by 1 % (round
 WRAP_TOLERANCE = 0.1  # a step within 10 % of 2π ...
 WRAP_STEP_RATIO = 50.0  # ... and 50 x the median nonzero step is a wrap
 LOCKED_MOTION_RAD = 0.05  # a locked lever turns by less than 0.05 rad (3°: the load cell's full deflection is ~0.1°)
-MAX_EFFORT_RATIO = 3.0  # the baseline's effort error may not exceed 3 x the command (RMS)
+MAX_EFFORT_RATIO = 3.0  # the baseline's effort error may not exceed 3 x the command (RMS) ...
+MAX_INERTIAL_SCALE = 3.0  # ... unless the logged effort matches the rig's inertial terms within this factor
 POSITION_COLUMNS = ("q", "q_motor")
 ASSUMED_CONVENTION = "assumed (neither the rig nor the log states it)"  # where the time convention comes from
 
@@ -150,11 +154,41 @@ def wrapped_steps(q: np.ndarray) -> np.ndarray:
     return np.flatnonzero(near_turn & (np.abs(steps) > WRAP_STEP_RATIO * typical))
 
 
-def check_effort_balance(effort_rmse: float, command_rms: float, unit: str, position_unit: str) -> None:
-    """Refuse a baseline that needs several times the logged effort to make the logged motion."""
-    if command_rms > 0 and effort_rmse > MAX_EFFORT_RATIO * command_rms:
-        raise InputError(f"the rig cannot produce the logged motion with the logged effort: the baseline's effort "
-                         f"error is {effort_rmse:.4g} {unit} RMS, {effort_rmse / command_rms:.3g} x the command's "
-                         f"{command_rms:.4g} {unit}. Check the units of 'q' ({position_unit}; degrees or "
-                         f"millimetres?), 'tau_cmd' ({unit}) and 'time' (s), and the rig's inertia or mass",
-                         column="q")
+def check_effort_balance(model: Surrogate, theta: dict[str, float], effort_rmse: float) -> None:
+    """Refuse a baseline that needs several times the logged effort to make the logged motion, when its inertial
+    terms are what is out of scale.
+
+    The balance may be far off for physics the rig lacks (a pendulum's weight on a rig that states none). A wrong
+    unit scales the inertial and viscous terms instead: the effort the rest of the balance leaves is
+    least-squares fitted by ``α`` times them plus the shapes of the common loads (a constant, a friction level,
+    and a hinge's sin and cos of its angle) on the fit part, and a log is refused when the baseline's effort
+    error exceeds MAX_EFFORT_RATIO x the command's RMS and ``α`` lies outside [1/MAX_INERTIAL_SCALE,
+    MAX_INERTIAL_SCALE] (positions in degrees give α ≈ 1/57, in millimetres 1/1000; a command in mN·m 1000).
+    """
+    d = model.data
+    command_rms = rms(d.filt(d.u_full)[d.held])
+    if not (command_rms > 0 and effort_rmse > MAX_EFFORT_RATIO * command_rms):
+        return
+    residual = model.residuals(theta)["effort"]
+    inertial = theta["inertia"] * d.acceleration + theta["viscous"] * d.velocity
+    sliding = ~model.stuck
+    shapes = [inertial, np.ones(len(d.t)), np.where(sliding, np.sign(d.velocity), 0.0)]
+    if model.rig.joint == "hinge":
+        angle = d.q if d.q is not None else d.position
+        shapes += [np.sin(angle), np.cos(angle)]
+    ok = d.fit & np.isfinite(residual)
+    if ok.sum() <= len(shapes):
+        return
+    basis = np.column_stack([shape[ok] for shape in shapes])
+    scale = np.maximum(np.abs(basis).max(axis=0), 1e-300)
+    coef, *_ = np.linalg.lstsq(basis / scale, (residual + inertial)[ok], rcond=None)
+    alpha = coef[0] / scale[0]
+    if 1.0 / MAX_INERTIAL_SCALE <= alpha <= MAX_INERTIAL_SCALE:
+        return
+    unit = channel_unit("effort", model.rig.joint)
+    position_unit = "m" if model.rig.joint == "slide" else "rad"
+    raise InputError(f"the rig cannot produce the logged motion with the logged effort: the baseline's effort error is "
+                     f"{effort_rmse:.4g} {unit} RMS, {effort_rmse / command_rms:.3g} x the command's {command_rms:.4g} "
+                     f"{unit}, and the logged effort matches {alpha:.3g} x the rig's inertial terms. Check the units "
+                     f"of 'q' ({position_unit}; degrees or millimetres?), 'tau_cmd' ({unit}) and 'time' (s), and the "
+                     f"rig's inertia or mass", column="q")

@@ -81,6 +81,7 @@ CHANNEL_MEANING = {
 CONVENTION_RANGE = (0.75, 1.5)
 STAND_IN_GAIN = 1.0 / 3.0  # beside an unexplained remainder, a finding explaining less is a stand-in
 LISTED_REJECTED_GAIN = 0.10  # refused candidates with at least this held-out gain are listed with their rule
+ALTERNATIVE_SHARE = 0.05  # another candidate explaining all but this share of a finding's drop is named beside it
 WIDEN = 10.0  # a free parameter that ends at a bound is re-fitted with bounds this many times as wide
 SECONDS_PER_GRID_SAMPLE = 5e-5  # the expected time of a run per analysis-grid sample and candidate, per worker
 # (measured on a rigid slide: 36 s for 125 000 grid samples, 12 candidates, 2 workers; a testbed costs ~5 x more)
@@ -402,7 +403,8 @@ def analyse(log: RunLog, rig: Rig, config: AnalysisConfig | None = None, *, prog
             effect=best.effect, kind=_kind(best.effect, theta0),
             parameters={}, rmse_heldout_before=current_score.rmse[channel],
             rmse_heldout_after=best.score.rmse[channel], gain=best.gains[channel],
-            evidence=_evidence(best, model, current, channel)))
+            evidence={**_evidence(best, model, current, channel), "rmse_accepted": best.score.rmse[channel],
+                      "alternatives": _alternatives(best, scores, current_score, channel)}))
         _progress(f"found {best.effect} (held-out {channel} RMSE -{100 * best.gains[channel]:.1f} %, "
                   f"ΔBIC {best.delta_bic:.1f})", progress)
         accepted = tuple(dict.fromkeys(EFFECTS[best.effect].keys + accepted))
@@ -701,6 +703,21 @@ def _evidence(best: Candidate, model: Surrogate, theta: dict[str, float], channe
             "delta_bic": best.delta_bic, "event_z": best.event_z, "improved_block_share": best.improved_block_share,
             "gains_by_channel": best.gains, "held_out_parameters": best.held_out_parameters,
             "model_log_parameters": best.model_log_parameters}
+
+
+def _alternatives(best: Candidate, scores: list[Candidate], before: ChannelScore, channel: str) -> list[dict]:
+    """Other candidates of the round that pass every rule checked in the round and come within ALTERNATIVE_SHARE of
+    the error ``best`` explains (its held-out RMSE drop in ``channel``): laws the log tells from it only weakly."""
+    drop = before.rmse[channel] - best.score.rmse[channel]
+    out = []
+    for c in scores:
+        if c is best or c.effect == best.effect or c.rejected_by not in (None, "moved", "stationary"):
+            continue
+        shortfall = c.score.rmse.get(channel, math.inf) - best.score.rmse[channel]
+        if drop > 0 and shortfall <= ALTERNATIVE_SHARE * drop:
+            out.append({"effect": c.effect, "rmse_heldout_after": c.score.rmse[channel],
+                        "parameters": c.parameters})
+    return out
 
 
 def _rejected(c: Candidate, joint: str) -> dict[str, Any]:

@@ -90,6 +90,11 @@ def format_result(result: DiscrepancyResult) -> str:
                          f"events z {ev['event_z']:.2f}"
                          + (f"; '{ev['signature']}' correlates {correlation:+.3f} with the residual before"
                             if correlation is not None and math.isfinite(correlation) else ""))
+            for alt in ev.get("alternatives") or []:
+                lines.append(f"     the log tells it only weakly from {alt['effect']} (held-out "
+                             f"{alt['rmse_heldout_after']:.4g} instead of {f.evidence['rmse_accepted']:.4g} when it "
+                             f"was accepted; " + ", ".join(f"{k} = {v:.4g}" for k, v in alt["parameters"].items())
+                             + ")")
     if result.rejected:
         lines.append("Refused candidates with a held-out gain of 10 % or more (and the rule that refused them):")
         for r in result.rejected:

@@ -325,6 +325,19 @@ class Surrogate:
         shift = theta["delay"] + self.const.get("current_lag", 0.0)
         return theta["effort_gain"] * np.interp(d.t - shift, d.t_full - 0.5 * d.hold_s, full)
 
+    def mapped_command(self, theta: dict[str, float]) -> np.ndarray:
+        """The command as the drive turns it into effort, at the log's rate and unfiltered [N·m | N]: clipped at
+        the drive's limit and through the effects' command maps (and the testbed motor's current-to-torque map),
+        before the dead time and the effort gain (the unfiltered counterpart of :meth:`delivered`'s input)."""
+        peak = theta["peak_effort"]
+        limit = self.const.get("command_limit", peak)
+        u = np.clip(self.data.u_full, -limit, limit)
+        for effect in self._hooks["command"]:
+            u = effect.command(u, theta, peak)
+        if self.const.get("torque_saturation"):
+            u = CurrentToTorqueMap(self.const["torque_saturation"], peak).delivered_nm(u)
+        return u
+
     def static_level(self, theta: dict[str, float]) -> float:
         """Static (breakaway) friction level [N·m | N]: a rigid joint without a Stribeck drop has one level."""
         if not self.testbed and self.theta0["breakaway"] == self.theta0["coulomb"] \

@@ -95,10 +95,11 @@ BASE = {"hinge": {"mass": 0.05, "coulomb": 0.3, "viscous": 0.05, "peak": 10.0, "
 
 
 @functools.cache
-def case(joint: str, excitation: str, ratio: float, vs: float, seed: int, *, delay: float = 0.0, gain: float = 1.0,
-         constant: float = 0.0) -> tuple[Surrogate, dict[str, float]]:
-    """A 10 s closed-loop (5 Hz PID) log of a joint with F_s = ratio x F_c (1: no Stribeck drop) and v_s, and the
-    surrogate of its true rig (the truth's Coulomb, viscous, inertia, dead time, effort gain, constant force)."""
+def simulated(joint: str, excitation: str, ratio: float, vs: float, seed: int, *, delay: float = 0.0,
+              gain: float = 1.0, constant: float = 0.0, noise: float = 0.0) -> tuple[Surrogate, dict, rigsim.Run]:
+    """A 10 s closed-loop (5 Hz PID) log of a joint with F_s = ratio x F_c (1: no Stribeck drop) and v_s, encoder
+    noise of ``noise`` steps; the surrogate of its true rig (the truth's Coulomb, viscous, inertia, dead time, effort
+    gain, constant force), the truth and the run."""
     b = BASE[joint]
     n = 10_000
     ref = (rigsim.multisine(n, b["span"], seed) if excitation == "multisine"
@@ -106,13 +107,19 @@ def case(joint: str, excitation: str, ratio: float, vs: float, seed: int, *, del
     plant = rigsim.Plant(joint, b["mass"], coulomb=b["coulomb"], breakaway=ratio * b["coulomb"],
                          stribeck_velocity=vs, viscous=b["viscous"], peak_effort=b["peak"], delay=delay,
                          effort_gain=gain, gravity_amplitude=constant, stick_velocity=1e-4 * b["speed"] / 3)
-    run = rigsim.simulate(plant, rigsim.PID.tuned(ref, b["mass"], 5.0, b["peak"]), n, seed=seed)
+    run = rigsim.simulate(plant, rigsim.PID.tuned(ref, b["mass"], 5.0, b["peak"]), n, seed=seed,
+                          noise_std=noise * rigsim.default_encoder_step(joint))
     rig = rig_from_dict({"model": "rigid-joint", "joint": joint,
                          ("mass_kg" if joint == "slide" else "inertia_kgm2"): b["mass"], "effort_gain": gain,
                          "delay_s": delay, "peak_effort": b["peak"], "constant_effort": constant,
                          "friction": {"coulomb": b["coulomb"], "viscous": b["viscous"]}})
     model = Surrogate(prepare(run.to_log(), rig, CONFIG), rig, CONFIG)
-    return model, {"breakaway": ratio * b["coulomb"], "stribeck_velocity": vs}
+    return model, {"breakaway": ratio * b["coulomb"], "stribeck_velocity": vs}, run
+
+
+def case(*args, **kwargs) -> tuple[Surrogate, dict[str, float]]:
+    model, truth, _ = simulated(*args, **kwargs)
+    return model, truth
 
 
 RECOVERED = [
@@ -121,6 +128,7 @@ RECOVERED = [
     pytest.param(("slide", "point_to_point", 1.4, 0.01, 3), {"delay": 0.003, "gain": 0.9, "constant": 1.5},
                  id="slide-point_to_point-delay-gain-constant_force"),
     pytest.param(("slide", "multisine", 1.7, 0.015, 4), {}, id="slide-multisine"),
+    pytest.param(("hinge", "point_to_point", 1.5, 0.05, 1), {"noise": 1.0}, id="hinge-point_to_point-noise"),
 ]
 
 
@@ -148,6 +156,24 @@ def test_a_stribeck_velocity_below_what_the_windows_resolve_is_bounded_from_abov
     assert fit.breakaway == pytest.approx(truth["breakaway"], rel=TOLERANCE)
     assert not fit.resolved and fit.bound.startswith("v_s below")
     assert fit.interval[1] > truth["stribeck_velocity"]
+
+
+@pytest.mark.parametrize("noise", [0.0, 1.0])
+def test_windows_start_where_the_true_joint_is_at_rest_or_at_their_start_velocity(noise):
+    """Row k of the log is the state at t = (k + 1)·dt: at a window's start at rest the true joint is stuck, or
+    breaking away so slowly that it has not moved by an encoder step in REST_LEAD_S (at a few % of v_s; with
+    encoder noise, slipping by a fraction of v_s: a still encoder cannot tell); a sliding window's start velocity
+    is the true one to 2 %."""
+    model, truth, run = simulated("hinge", "point_to_point", 1.5, 0.05, 1, noise=noise)
+    windows = find_windows(model, model.theta0)
+    rest = windows.at_rest
+    assert rest.sum() >= 3
+    speed = np.array([np.abs(run.v_true[start - 5:start + 1]).max() for start in windows.start[rest]])
+    assert np.all(speed < (0.3 if noise else 0.03) * truth["stribeck_velocity"])
+    assert np.mean(speed == 0.0) >= (0.3 if noise else 0.8)
+    sliding = ~rest
+    error = np.abs(windows.velocity0[sliding] - run.v_true[windows.start[sliding]])
+    assert np.all(error <= 0.02 * np.abs(run.v_true[windows.start[sliding]]))
 
 
 def test_windows_carry_the_logged_command_held_over_each_sample_and_lie_in_the_chosen_part():

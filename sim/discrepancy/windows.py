@@ -13,9 +13,9 @@ Events and windows (at the log's rate)
     state is known exactly or well:
 
     - *at rest* (``v = 0``): at the latest sample of a stuck stretch around which the raw position stays within
-      ``REST_STEPS`` encoder steps from ``REST_BEFORE_S`` before to ``REST_LEAD_S`` after it. The first counts of a
-      breakaway take milliseconds, so the window starts that lead before them; a joint creeping by one step or more
-      over the span does not count as at rest;
+      ``REST_STEPS`` encoder steps (plus ``REST_NOISE_SIGMAS`` x its white noise where the joint is stuck) from
+      ``REST_BEFORE_S`` before to ``REST_LEAD_S`` after it. The first counts of a breakaway take milliseconds, so
+      the window starts that lead before them; a joint creeping by a step or more over the span is not at rest;
     - *sliding*: ``SLIDE_LEAD_PERIODS`` filter periods before the low-speed stretch of a reversal (a stop of at
       most ``MAX_STOP_S``, or none), at least as far after the previous event, at a speed of at least
       ``MIN_START_SPEED_OF_RMS`` x the log's RMS velocity: the analysis band's velocity is good away from the
@@ -76,12 +76,14 @@ from scipy.optimize import least_squares
 
 from sim.discrepancy.effects import EFFECTS, TESTBED
 from sim.discrepancy.model import Surrogate, stribeck_level
+from sim.discrepancy.signals import white_noise_std
 
 MAX_WINDOWS = 40  # windows per fit, spread over the log's events
 SUBSTEPS = 2  # integration steps per sample of the log
 REST_LEAD_S = 0.02  # a window at rest starts this long before the position first moves [s]
 REST_BEFORE_S = 0.02  # ... and the position has been still for this long before the start [s]
 REST_STEPS = 1  # still: within this many encoder steps (a creep of one step per REST_BEFORE_S + REST_LEAD_S shows)
+REST_NOISE_SIGMAS = 6.0  # ... plus this many standard deviations of the position's white noise
 SLIDE_LEAD_PERIODS = 1.0  # a sliding window starts this many filter periods before its low-speed stretch
 MIN_START_SPEED_OF_RMS = 0.1  # ... at a speed of at least this x the log's RMS velocity, and its low-speed
 MAX_STOP_S = 0.04  # stretch lasts at most this long [s] (a longer stop is a window at rest, or none)
@@ -201,6 +203,11 @@ def low_speed_events(model: Surrogate) -> list[tuple[int, int]]:
     finds them (:meth:`Surrogate._transition_velocity`, below its stick velocity)."""
     v = model._transition_velocity()
     stuck = np.abs(v) < model.stick_velocity
+    return _events(v, stuck)
+
+
+def _events(v: np.ndarray, stuck: np.ndarray) -> list[tuple[int, int]]:
+    """:func:`low_speed_events` of the full-rate transition velocity ``v`` and its stuck samples."""
     n = len(v)
     edges = np.flatnonzero(stuck[1:] != stuck[:-1]) + 1
     starts = np.r_[0, edges]
@@ -248,13 +255,17 @@ def find_windows(model: Surrogate, theta: dict[str, float], *, max_windows: int 
     # still: the raw position within REST_STEPS encoder steps from REST_BEFORE_S before to REST_LEAD_S after
     span = before_rest + lead_rest + 1
     origin = (before_rest - lead_rest) // 2  # centre the filters' footprint on [i - before, i + lead]
-    tolerance = REST_STEPS * max(d.position_resolution, 1e-12) * (1 + 1e-9)
+    v = model._transition_velocity()
+    stuck = np.abs(v) < model.stick_velocity
+    # the encoder's noise where the joint is still (a moving joint's quantisation is no noise of a still one)
+    noise = white_noise_std(y[stuck]) if stuck.sum() > 8 else 0.0
+    tolerance = REST_STEPS * max(d.position_resolution, 1e-12) * (1 + 1e-9) + REST_NOISE_SIGMAS * noise
     still = (maximum_filter1d(y, span, origin=origin, mode="nearest")
              - minimum_filter1d(y, span, origin=origin, mode="nearest")) <= tolerance
     allowed = _part_mask(model, part)
     segment = _segment_of(model)
     speed_floor = MIN_START_SPEED_OF_RMS * float(np.sqrt(np.mean(d.velocity_full ** 2)))
-    events = low_speed_events(model)
+    events = _events(v, stuck)
     candidates: list[tuple[int, int, int, bool]] = []  # (start, event, end, at rest)
     for k, (a, b) in enumerate(events):
         previous = events[k - 1][1] if k else 0

@@ -143,17 +143,21 @@ class WindowFit:
     resolved : bool
         Whether the windows bound v_s on both sides (see the module docstring).
     interval : (float, float)
-        The Stribeck velocities the windows do not exclude (ends of the profile's grid where they reach it).
+        The Stribeck velocities the windows do not exclude [rad/s | m/s] (an end of the effect's range where they
+        reach it).
     bound : str
-        What the windows say of v_s when it is not resolved ("v_s below X", "v_s above X"; empty if resolved).
+        What the windows say of v_s when it is not resolved ("v_s below X", "v_s above X", "v_s not bounded
+        within X-Y"; empty if resolved).
     profile_velocity, profile_cost, profile_breakaway : ndarray
-        The profile: grid of v_s, the cost there (F_s and the nuisances minimised) [rad² | m²], its F_s.
+        The profile, v_s ascending: the grid over the effect's range, the refinement's points and the fit; the
+        cost there with F_s (and the start-velocity corrections) minimised [rad² | m²]; that F_s [N·m | N].
     profile_z : ndarray
-        How many standard errors of the windows' summed cost rise each grid value lies above the fit [1].
+        The profile's z: the square root of each point's cost rise over the fit, over the effective residual
+        variance (module docstring) [1].
     cost : float
-        Sum of the squared position residuals at the fit [rad² | m²].
+        Sum of the squared position residuals at the fit, the corrections projected out [rad² | m²].
     rms : float
-        RMS of the position residual at the fit [rad | m].
+        RMS of those residuals [rad | m].
     windows, events : int
         Windows used; events found in the log.
     at_rest : int

@@ -351,53 +351,70 @@ def simulate(windows: Windows, inertia: float, coulomb: float, viscous: float, b
     fs, vs = (np.asarray(x, dtype=float) for x in (breakaway, stribeck_velocity))
     fs = fs[:, None] if fs.ndim == 1 else fs  # (B, 1) or (B, W)
     vs = vs[:, None] if vs.ndim == 1 else vs
-    batch = np.broadcast_shapes(fs.shape, vs.shape)[0]
-    n_windows = windows.count
-    v = np.array(np.broadcast_to(windows.velocity0 if velocity0 is None else velocity0, (batch, n_windows)),
-                 dtype=float)
+    shape = (np.broadcast_shapes(fs.shape, vs.shape)[0], windows.count)
+    v = np.array(np.broadcast_to(windows.velocity0 if velocity0 is None else velocity0, shape), dtype=float)
     h, substeps = windows.step, windows.substeps
     width = windows.measured.shape[1]
     inv_m = 1.0 / inertia
     damping = viscous * inv_m
-    curve = -1.0 / (vs * vs)  # g(v) = F_c + (F_s - F_c)·exp(curve·v²): sim.discrepancy.model.stribeck_level
-    drop = stribeck_level(np.zeros(1), coulomb, fs, vs) - coulomb
-    # breaking away, precomputed for every step: the force beyond the static level, the acceleration it gives,
-    # and the part of the step after the applied force crossed it (linear between steps; the whole step if it
-    # was beyond before)
-    force = windows.forcing[None, :, :]  # (1, W, steps + 1)
-    excess = np.abs(force) - fs[:, :, None]  # (B, W, steps + 1)
-    previous, current = excess[:, :, :-1], excess[:, :, 1:]
+    # sliding: a = f/m - sign(v)·g(v)/m - σ2·v/m, g(v) = F_c + (F_s - F_c)·exp(curve·v²) (model.stribeck_level)
+    curve = np.broadcast_to(-1.0 / (vs * vs), shape).copy()
+    drop = np.broadcast_to((stribeck_level(np.zeros(1), coulomb, fs, vs) - coulomb) * inv_m, shape).copy()
+    level = coulomb * inv_m
+    # breaking away, precomputed for every step (step-major): the force beyond the static level, the acceleration
+    # it gives, and the part of the step after the applied force crossed it (linear between steps; the whole step
+    # if it was beyond before)
+    force = np.moveaxis(windows.forcing, 1, 0)[:, None, :]  # (steps + 1, 1, W)
+    excess = np.abs(force) - fs[None]  # (steps + 1, B, W)
+    previous, current = excess[:-1], excess[1:]
     with np.errstate(divide="ignore", invalid="ignore"):
         part = np.where(previous < 0.0, current / (current - previous), 1.0)
     breaking = (current > 0.0).astype(float)
     tau = breaking * h * np.clip(part, 0.0, 1.0)  # 0: stays stuck
-    drive = breaking * (force[:, :, 1:] - np.sign(force[:, :, 1:]) * fs[:, :, None]) * inv_m
+    force = force[1:]
+    drive = breaking * (force - np.sign(force) * fs[None]) * inv_m
     half_drive = 0.5 * drive
-    force = force[:, :, 1:]
-    q = np.zeros((batch, n_windows))
-    out = np.empty((batch, n_windows, width))
+    pushing = np.ascontiguousarray(np.broadcast_to(force * inv_m, tau.shape))
+    q = np.zeros(shape)
+    out = np.empty((width,) + shape)
+    a, a_end, v_end, work, sign = (np.empty(shape) for _ in range(5))
+
+    def acceleration(j: int, speed: np.ndarray, into: np.ndarray) -> None:
+        """The sliding acceleration at ``speed`` in step j, into ``into`` (in place: the loop's hot path)."""
+        np.multiply(speed, speed, out=work)
+        np.multiply(work, curve, out=work)
+        np.exp(work, out=work)
+        np.multiply(work, drop, out=work)
+        np.add(work, level, out=work)
+        np.multiply(work, np.sign(speed, out=sign), out=work)
+        np.subtract(pushing[j], work, out=into)
+        into -= damping * speed
+
     with np.errstate(divide="ignore", invalid="ignore"):
         for k in range(width):
             for s in range(substeps):
                 j = k * substeps + s
                 stuck = v == 0.0
-                # sliding: the Stribeck curve and viscous friction (Heun's method: the mean of the accelerations
-                # at the step's start and at its Euler end); the position by the step's mean velocity
-                f = force[:, :, j]
-                a = (f - np.sign(v) * (coulomb + drop * np.exp(curve * v * v))) * inv_m - damping * v
-                v_new = v + a * h
-                a_end = (f - np.sign(v_new) * (coulomb + drop * np.exp(curve * v_new * v_new))) * inv_m \
-                    - damping * v_new
-                v_new = np.where(v * v_new > 0.0, v + 0.5 * (a + a_end) * h, v_new)
-                stop = v * v_new <= 0.0  # stuck, or a velocity that would cross zero: it stops at zero ...
+                # sliding, by Heun's method (the mean of the accelerations at the step's start and at its Euler
+                # end); the position by the step's mean velocity
+                acceleration(j, v, a)
+                np.multiply(a, h, out=v_end)
+                v_end += v
+                moving = v * v_end > 0.0
+                acceleration(j, v_end, a_end)
+                a_end += a
+                a_end *= 0.5 * h
+                a_end += v
+                np.copyto(v_end, a_end, where=moving)
+                stop = v * v_end <= 0.0  # stuck, or a velocity that would cross zero: it stops at zero ...
                 t_move = np.where(stuck, 0.0, np.where(stop, -v / a, h))
                 # ... and breaks away for the rest of the step if the force is beyond the static level; a stuck
                 # joint breaks away for the part of the step after the force crossed it (or stays)
-                free = np.where(stuck, tau[:, :, j], (h - t_move) * breaking[:, :, j])
-                q += 0.5 * (v + np.where(stop, 0.0, v_new)) * t_move + half_drive[:, :, j] * free * free
-                v = np.where(stop, drive[:, :, j] * free, v_new)
-            out[:, :, k] = q
-    return out
+                free = np.where(stuck, tau[j], (h - t_move) * breaking[j])
+                q += 0.5 * (v + np.where(stop, 0.0, v_end)) * t_move + half_drive[j] * free * free
+                v = np.where(stop, drive[j] * free, v_end)
+            out[k] = q
+    return np.moveaxis(out, 0, 2)
 
 
 # ------------------------------------------------------------------------------------------------------- fit

@@ -12,6 +12,7 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
+from sim.discrepancy.effects import EFFECTS
 from sim.discrepancy.model import Surrogate
 from sim.discrepancy.rig import rig_from_dict
 from sim.discrepancy.signals import AnalysisConfig, prepare
@@ -117,6 +118,13 @@ def simulated(joint: str, excitation: str, ratio: float, vs: float, seed: int, *
     return model, {"breakaway": ratio * b["coulomb"], "stribeck_velocity": vs}, run
 
 
+def stribeck_range(model: Surrogate) -> tuple[tuple[float, float], float]:
+    """The Stribeck effect's ranges on ``model``: (v_s's [rad/s | m/s], F_s's top [N·m | N])."""
+    effect = EFFECTS["stribeck_friction"]
+    return (effect.bounds("stribeck_velocity", model.scale, model.theta0),
+            effect.bounds("breakaway", model.scale, model.theta0)[1])
+
+
 def case(*args, **kwargs) -> tuple[Surrogate, dict[str, float]]:
     model, truth, _ = simulated(*args, **kwargs)
     return model, truth
@@ -135,7 +143,7 @@ RECOVERED = [
 @pytest.mark.parametrize(("args", "kwargs"), RECOVERED)
 def test_the_fit_recovers_the_breakaway_and_the_stribeck_velocity_of_independent_logs(args, kwargs):
     model, truth = case(*args, **kwargs)
-    fit = fit_stribeck(model, model.theta0)
+    fit = fit_stribeck(model, model.theta0, *stribeck_range(model))
     assert fit.breakaway == pytest.approx(truth["breakaway"], rel=TOLERANCE)
     assert fit.stribeck_velocity == pytest.approx(truth["stribeck_velocity"], rel=TOLERANCE)
     assert fit.resolved and fit.bound == ""
@@ -145,14 +153,14 @@ def test_the_fit_recovers_the_breakaway_and_the_stribeck_velocity_of_independent
 
 def test_a_log_without_a_stribeck_drop_gives_the_coulomb_level_and_no_stribeck_velocity():
     model, truth = case("hinge", "multisine", 1.0, 0.05, 5)
-    fit = fit_stribeck(model, model.theta0)
+    fit = fit_stribeck(model, model.theta0, *stribeck_range(model))
     assert fit.breakaway == pytest.approx(truth["breakaway"], rel=0.02)
     assert not fit.resolved and fit.bound.startswith("v_s not bounded")
 
 
 def test_a_stribeck_velocity_below_what_the_windows_resolve_is_bounded_from_above():
     model, truth = case("hinge", "point_to_point", 1.5, 0.001, 6)
-    fit = fit_stribeck(model, model.theta0)
+    fit = fit_stribeck(model, model.theta0, *stribeck_range(model))
     assert fit.breakaway == pytest.approx(truth["breakaway"], rel=TOLERANCE)
     assert not fit.resolved and fit.bound.startswith("v_s below")
     assert fit.interval[1] > truth["stribeck_velocity"]
@@ -202,4 +210,4 @@ def test_the_mapped_command_is_the_independent_simulators_delivered_effort_befor
 
 def test_the_testbed_is_refused():
     with pytest.raises(ValueError, match="rigid joint"):
-        find_windows(SimpleNamespace(kind="testbed"), {})
+        find_windows(SimpleNamespace(testbed=True), {})

@@ -401,14 +401,16 @@ def analyse(log: RunLog, rig: Rig, config: AnalysisConfig | None = None, *, prog
         channel = best.best_channel
         findings.append(Finding(
             effect=best.effect, kind=_kind(best.effect, theta0),
-            parameters={}, rmse_heldout_before=current_score.rmse[channel],
+            parameters={}, rmse_heldout_before=best.before_rmse[channel],
             rmse_heldout_after=best.score.rmse[channel], gain=best.gains[channel],
             evidence={**_evidence(best, model, current, channel), "rmse_accepted": best.score.rmse[channel],
-                      "alternatives": _alternatives(best, scores, current_score, channel)}))
+                      "alternatives": _alternatives(best, scores, channel)}))
         _progress(f"found {best.effect} (held-out {channel} RMSE -{100 * best.gains[channel]:.1f} %, "
                   f"ΔBIC {best.delta_bic:.1f})", progress)
         accepted = tuple(dict.fromkeys(EFFECTS[best.effect].keys + accepted))
-        current, current_score = best.fit.theta, best.score
+        # the next round judges against the balance's channels (a candidate scored on the low-speed windows too
+        # adds that channel to its own before and after)
+        current, current_score = best.fit.theta, held_out_score(model, best.fit.theta)
         # what the logs can reveal is judged against the current model: a Stribeck drop shows against a friction
         # level found in an earlier round
         remaining = [name for name in remaining if name != best.effect]
@@ -705,10 +707,10 @@ def _evidence(best: Candidate, model: Surrogate, theta: dict[str, float], channe
             "model_log_parameters": best.model_log_parameters}
 
 
-def _alternatives(best: Candidate, scores: list[Candidate], before: ChannelScore, channel: str) -> list[dict]:
+def _alternatives(best: Candidate, scores: list[Candidate], channel: str) -> list[dict]:
     """Other candidates of the round that pass every rule checked in the round and come within ALTERNATIVE_SHARE of
     the error ``best`` explains (its held-out RMSE drop in ``channel``): laws the log tells from it only weakly."""
-    drop = before.rmse[channel] - best.score.rmse[channel]
+    drop = best.before_rmse[channel] - best.score.rmse[channel]
     out = []
     for c in scores:
         if c is best or c.effect == best.effect or c.rejected_by not in (None, "moved", "stationary"):

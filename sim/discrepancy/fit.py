@@ -44,6 +44,8 @@ class FitOutcome:
     bounds: dict[str, tuple[float, float]] = field(default_factory=dict)
     at_bound: dict[str, str] = field(default_factory=dict)
     jacobian: np.ndarray | None = field(default=None, repr=False)
+    errors: dict[str, float] | None = None  # standard errors of a fit that knows them itself [their units]
+    details: dict | None = None  # what a fit of an effect's own adds (its windows, its resolution)
 
     def to_dict(self) -> dict:
         return {"parameters": {k: self.theta[k] for k in self.keys}, "cost": self.cost,
@@ -157,9 +159,11 @@ def fit_keys(model: Surrogate, theta0: dict[str, float], keys: tuple[str, ...], 
 
 
 def standard_errors(outcome: FitOutcome, dof_fraction: float) -> dict[str, float]:
-    """Standard errors of the fitted keys [their units] from the Jacobian at the solution, the residual variance
-    and the fraction of independent samples per residual ``dof_fraction`` (the filtered residual's samples are
-    correlated): ``sqrt(diag((JᵀJ)⁻¹)·s²/dof_fraction)``."""
+    """Standard errors of the fitted keys [their units]: those the fit knows itself (``errors``), else from the
+    Jacobian at the solution, the residual variance and the fraction of independent samples per residual
+    ``dof_fraction`` (the filtered residual's samples are correlated): ``sqrt(diag((JᵀJ)⁻¹)·s²/dof_fraction)``."""
+    if outcome.errors is not None:
+        return outcome.errors
     jac = outcome.jacobian
     if jac is None or not outcome.keys:
         return {}

@@ -48,6 +48,7 @@ from scipy.signal import butter, sosfiltfilt
 
 from models.gim8108_testbed.derived import derive
 from sim.discrepancy.effects import EFFECTS, TESTBED, Effect, Scale, rig_kind
+from sim.discrepancy.laws import stribeck_level
 from sim.discrepancy.rig import Rig
 from sim.discrepancy.signals import FILTER_ORDER, AnalysisConfig, Prepared, rms, testbed_constants
 from sim.motor_torque import CurrentToTorqueMap
@@ -102,11 +103,6 @@ def baseline_theta(rig: Rig) -> dict[str, float]:
     for effect in rig.effects:
         theta.update(effect.parameters)
     return theta
-
-
-def stribeck_level(velocity: np.ndarray, coulomb: float, breakaway: float, stribeck_velocity: float) -> np.ndarray:
-    """Sliding friction level g(v) = F_c + (F_s - F_c)·exp(-(v/v_s)²) [N·m | N] (the plant's LuGre curve)."""
-    return coulomb + (breakaway - coulomb) * np.exp(-(velocity / stribeck_velocity) ** 2)
 
 
 def bristle_state(step_velocity: np.ndarray, g: np.ndarray, stiffness: float, dt: float) -> np.ndarray:
@@ -179,7 +175,7 @@ class Surrogate:
             self.stuck = np.abs(d.velocity) < self.stick_velocity
             self.near_transition = np.zeros(len(d.t), dtype=bool)
         else:
-            v = self._transition_velocity()
+            v = self.transition_velocity = self._transition_velocity()
             stuck_full = np.abs(v) < self.stick_velocity
             self.stuck = stuck_full[d.grid]
             moving = np.flatnonzero(~stuck_full)
@@ -366,8 +362,11 @@ class Surrogate:
         def static_curve() -> np.ndarray:
             # the curve of the full-rate velocity, then filtered like every other term of the balance: the
             # Stribeck hump and the sign change at a reversal last a few milliseconds, which the filter smears
-            # over ~1/f_c in the logged effort; the curve of the filtered velocity would keep them sharp
-            v = d.velocity_full
+            # over ~1/f_c in the logged effort; the curve of the filtered velocity would keep them sharp. The
+            # velocity is the one stick-slip transitions are found with (twice the analysis band): in the band's
+            # own, a reversal lasts ~1/f_c, and the curve's drop there leaks through the filter into the samples
+            # beyond the transitions' guards (a true Stribeck drop then fitted the balance worse than none)
+            v = self.transition_velocity
             return d.filt(np.sign(v) * stribeck_level(v, fc, fs, vs))
 
         return self.memo("friction", (fc, fs, vs), static_curve)

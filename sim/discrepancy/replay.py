@@ -38,7 +38,8 @@ import numpy as np
 from scipy.ndimage import maximum_filter1d
 
 from sim.discrepancy.effects.transport_delay import MAX_DELAY_S
-from sim.discrepancy.model import bristle_state, stribeck_level
+from sim.discrepancy.laws import stribeck_level
+from sim.discrepancy.model import bristle_state
 from sim.discrepancy.rig import Rig
 from sim.discrepancy.signals import AnalysisConfig, Prepared, white_noise_std
 from sim.discrepancy.simulate import InitialState, realisations, run_rigid, run_testbed, testbed_plant

@@ -67,6 +67,7 @@ from sim.discrepancy.effects import EFFECTS
 from sim.discrepancy.fit import FitOutcome, at_bound_of, fit_keys, standard_errors
 from sim.discrepancy.model import Surrogate
 from sim.discrepancy.signals import AnalysisConfig
+from sim.discrepancy.windows import LOW_SPEED, position_error
 from sim.executor import Executor
 
 RULES = ("simpler", "bound", "bic", "gain", "size", "events", "moved", "stationary")
@@ -105,6 +106,8 @@ class Candidate:
     held_out_parameters: dict[str, float] | None = None  # fitted on the held-out part alone ('stationary')
     model_log_parameters: dict[str, float] | None = None  # fitted on the model's own log ('moved')
     note: str = ""
+    before_rmse: dict[str, float] = field(default_factory=dict)  # the current model's, per channel scored
+    details: dict[str, Any] | None = None  # what the effect's own fit adds (its low-speed windows)
 
     @property
     def passes(self) -> bool:
@@ -128,7 +131,8 @@ class Candidate:
                 "improved_block_share": self.improved_block_share, "passes": self.passes,
                 "rejected_by": self.rejected_by, "at_bound": self.at_bound, "parameters": self.parameters,
                 "held_out_parameters": self.held_out_parameters,
-                "model_log_parameters": self.model_log_parameters, "note": self.note, "seconds": self.seconds}
+                "model_log_parameters": self.model_log_parameters, "note": self.note, "seconds": self.seconds,
+                **({"details": self.details} if self.details else {})}
 
 
 def smallest_change(model: Surrogate) -> float:
@@ -138,8 +142,11 @@ def smallest_change(model: Surrogate) -> float:
     return max(model.config.min_effort_change * model.command_rms, model.resolution_floor)
 
 
-def held_out_score(model: Surrogate, theta: dict[str, float], mask: np.ndarray | None = None) -> ChannelScore:
-    """Held-out RMSE per channel and its independent sample count (``mask``: default the held-out part)."""
+def held_out_score(model: Surrogate, theta: dict[str, float], mask: np.ndarray | None = None, *,
+                   low_speed: bool = False) -> ChannelScore:
+    """Held-out RMSE per channel and its independent sample count (``mask``: default the held-out part); with
+    ``low_speed``, a rigid joint's held-out low-speed windows' position error as a channel too
+    (:func:`with_low_speed`)."""
     mask = model.data.held if mask is None else mask
     per_sample = model.data.independent_per_grid_sample
     rmse, count, residuals = {}, {}, {}
@@ -149,7 +156,36 @@ def held_out_score(model: Surrogate, theta: dict[str, float], mask: np.ndarray |
         sel = held[np.isfinite(held)]
         rmse[channel] = float(np.sqrt(np.mean(sel**2))) if len(sel) else float("nan")
         count[channel] = len(sel) * per_sample
-    return ChannelScore(rmse, count, residuals)
+    score = ChannelScore(rmse, count, residuals)
+    return with_low_speed(model, theta, score) if low_speed else score
+
+
+def with_low_speed(model: Surrogate, theta: dict[str, float], score: ChannelScore) -> ChannelScore:
+    """``score`` with the channel ``low_speed`` [rad | m]: the position error of the windows around the held-out
+    part's low-speed events (:func:`sim.discrepancy.windows.position_error`), each window one independent sample;
+    unchanged where it has none or already has the channel."""
+    if LOW_SPEED in score.rmse:
+        return score
+    floor = EFFECTS["stribeck_friction"].bounds("stribeck_velocity", model.scale, theta)[0]
+    error = position_error(model, theta, floor, part="held")
+    if error is None:
+        return score
+    values, windows = error
+    held = values[model.data.held]
+    sel = held[np.isfinite(held)]
+    return ChannelScore({**score.rmse, LOW_SPEED: float(np.sqrt(np.mean(sel**2))) if len(sel) else float("nan")},
+                        {**score.independent_samples, LOW_SPEED: float(windows)},
+                        {**score.residuals, LOW_SPEED: held})
+
+
+def low_speed_change(before: ChannelScore, after: ChannelScore) -> float:
+    """RMS change of the low-speed windows' position error between two models [rad | m] (0 without the
+    channel)."""
+    b, a = before.residuals.get(LOW_SPEED), after.residuals.get(LOW_SPEED)
+    if b is None or a is None:
+        return 0.0
+    ok = np.isfinite(a) & np.isfinite(b)
+    return float(np.sqrt(np.mean((b[ok] - a[ok]) ** 2))) if ok.any() else 0.0
 
 
 def compare(before: ChannelScore, after: ChannelScore, n_params: int) -> tuple[float, dict[str, float]]:
@@ -244,11 +280,21 @@ def candidate_keys(effect: str, accepted: tuple[str, ...]) -> tuple[str, ...]:
 
 def fit_effect(model: Surrogate, effect: str, theta: dict[str, float], accepted: tuple[str, ...],
                scales: dict[str, float], *, mask: np.ndarray | None = None) -> FitOutcome:
-    """Fit one effect's parameters jointly with the ``accepted`` keys, from the effect's starting points."""
+    """Fit one effect's parameters jointly with the ``accepted`` keys: its own fit (:meth:`Effect.fit
+    <sim.discrepancy.effects.base.Effect.fit>`) where it has one, else least squares from its starting points."""
     spec = EFFECTS[effect]
-    starts, held = spec.starts(model, theta)
-    return fit_keys(model, theta, candidate_keys(effect, accepted), scales, starts, mask=mask, held=held,
-                    refine=spec.refined_starts)
+    keys = candidate_keys(effect, accepted)
+    own = spec.fit(model, theta, mask=mask)
+    if own is None:
+        starts, held = spec.starts(model, theta)
+        return fit_keys(model, theta, keys, scales, starts, mask=mask, held=held, refine=spec.refined_starts)
+    others = tuple(k for k in keys if k not in spec.keys)
+    refit = fit_keys(model, {**theta, **own.values}, others, scales, mask=mask)
+    bounds = {k: spec.bounds(k, model.scale, theta) for k in spec.keys}
+    at_bound = {k: side for k in spec.keys if k not in own.unresolved
+                and (side := at_bound_of(k, own.values[k], *bounds[k], theta[k]))}
+    return replace(refit, keys=spec.keys + refit.keys, bounds={**bounds, **refit.bounds},
+                   at_bound={**at_bound, **refit.at_bound}, errors=own.errors, details=own.details)
 
 
 def fit_candidate(model: Surrogate, effect: str, theta: dict[str, float], accepted: tuple[str, ...],
@@ -264,7 +310,10 @@ def fit_candidate(model: Surrogate, effect: str, theta: dict[str, float], accept
     # an effort gain shrinking every term of the balance with it)
     at_bound = {k: side for k, side in outcome.at_bound.items()
                 if k in own or at_bound_of(k, theta[k], *outcome.bounds[k]) is None}
-    after = held_out_score(model, outcome.theta)
+    windowed = spec.low_speed_evidence and not model.testbed
+    if windowed:
+        before = with_low_speed(model, theta, before)
+    after = held_out_score(model, outcome.theta, low_speed=windowed)
     delta, gains = compare(before, after, spec.n_parameters(model))
     gain = max(gains.values()) if gains else 0.0
     block = block_samples(model)
@@ -274,7 +323,7 @@ def fit_candidate(model: Surrogate, effect: str, theta: dict[str, float], accept
     simpler = spec.simpler(model, outcome.theta)
     if simpler is not None:
         name, why = simpler
-        plain = held_out_score(model, fit_effect(model, name, theta, accepted, scales).theta)
+        plain = held_out_score(model, fit_effect(model, name, theta, accepted, scales).theta, low_speed=windowed)
         extra = max(1, spec.n_parameters(model) - EFFECTS[name].n_parameters(model))
         d_simpler, g_simpler = compare(plain, after, extra)
         gain_simpler = max(g_simpler.values()) if g_simpler else 0.0
@@ -288,7 +337,8 @@ def fit_candidate(model: Surrogate, effect: str, theta: dict[str, float], accept
     checks = {"bound": not at_bound, "simpler": simpler is None, "bic": delta < -cfg.min_ic_drop,
               "gain": gain >= cfg.min_relative_gain,
               "size": spec.channel != "effort" or change >= (model.resolution_floor if spec.any_size
-                                                              else smallest_change(model)),
+                                                              else smallest_change(model))
+              or low_speed_change(before, after) >= model.data.position_resolution,
               "events": passes_events(gain, z, share, cfg.min_event_z),
               "moved": moved_enough(effect, theta, outcome.theta, cfg.min_parameter_change)}
     rejected = next((rule for rule in RULES if not checks.get(rule, True)), None)
@@ -297,7 +347,7 @@ def fit_candidate(model: Surrogate, effect: str, theta: dict[str, float], accept
                                      f"{outcome.bounds[k][1]:.4g}]" for k, side in at_bound.items())
     candidate = Candidate(effect, outcome, after, delta, gains, z, share, rejected, 0.0, at_bound,
                           effort_change=change / model.command_rms if model.command_rms > 0 else float("nan"),
-                          note=note)
+                          note=note, before_rmse=dict(before.rmse), details=outcome.details)
     if rejected is None:
         candidate = stationarity(model, candidate, theta, accepted, scales)
     return replace(candidate, seconds=time.perf_counter() - start)
@@ -313,17 +363,22 @@ def stationarity(model: Surrogate, candidate: Candidate, theta: dict[str, float]
     if not keys:
         return candidate
     fit_part = candidate.fit
-    held = fit_keys(model, fit_part.theta, keys, scales, mask=model.data.held)
     fraction = model.data.independent_per_grid_sample
-    se_fit, se_held = standard_errors(fit_part, fraction), standard_errors(held, fraction)
+    own = effect.fit(model, fit_part.theta, mask=model.data.held)
+    if own is None:
+        held = fit_keys(model, fit_part.theta, keys, scales, mask=model.data.held)
+        values, se_held = held.theta, standard_errors(held, fraction)
+    else:
+        values, se_held = {**fit_part.theta, **own.values}, own.errors
+    se_fit = standard_errors(fit_part, fraction)
     drifting = []
     for key in keys:
-        a, b = fit_part.theta[key], held.theta[key]
+        a, b = fit_part.theta[key], values[key]
         allowed = max(cfg.max_stability_z * math.hypot(se_fit.get(key, 0.0), se_held.get(key, 0.0)),
                       cfg.stability_tolerance * abs(a))
         if not abs(b - a) <= allowed:
             drifting.append(f"{key} {a:.4g} on the fit part, {b:.4g} on the held-out part")
-    values = {k: held.theta[k] for k in effect.keys}
+    values = {k: values[k] for k in effect.keys}
     if drifting:
         return replace(candidate, rejected_by="stationary", held_out_parameters=values,
                        note="non-stationary: " + "; ".join(drifting))

@@ -37,7 +37,7 @@ model's loads (:meth:`Surrogate.loads`: gravity, cogging, springs, ...) on the m
 the analysis grid. Friction is Karnopp stick-slip: a joint at rest (``v = 0``) stays while ``|u_d - L| <= F_s``
 and breaks away at ``±F_s`` from the instant the applied force crosses ``F_s`` (linear between steps, so the
 motion is continuous in ``F_s``); sliding, ``F_f = sign(v)·g(v) + σ2·v`` with ``g`` the Stribeck curve
-(:func:`sim.discrepancy.model.stribeck_level`), integrated by Heun's method, the position by the step's mean
+(:func:`sim.discrepancy.laws.stribeck_level`), integrated by Heun's method, the position by the step's mean
 velocity; a velocity that would cross zero within a step stops at zero (the position advancing to the stop under
 the step's acceleration) and breaks away again for the rest of the step if the force is beyond ``F_s``.
 
@@ -69,14 +69,17 @@ from __future__ import annotations
 import math
 import time
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
 
 import numpy as np
 from scipy.ndimage import maximum_filter1d, minimum_filter1d
 from scipy.optimize import least_squares
 
-from sim.discrepancy.effects import EFFECTS, TESTBED
-from sim.discrepancy.model import Surrogate, stribeck_level
+from sim.discrepancy.laws import stribeck_level
 from sim.discrepancy.signals import white_noise_std
+
+if TYPE_CHECKING:
+    from sim.discrepancy.model import Surrogate
 
 MAX_WINDOWS = 40  # windows per fit, spread over the log's events
 SUBSTEPS = 2  # integration steps per sample of the log
@@ -204,8 +207,8 @@ def low_speed_events(model: Surrogate) -> list[tuple[int, int]]:
     """The log's low-speed events as (first sample of the low-speed stretch, first moving sample after it), full
     rate: every stuck stretch followed by motion (a breakaway, or a reversal with a stop), and every sign change of
     the moving velocity (a reversal without a stop, the stretch one sample long). Stuck and moving as the surrogate
-    finds them (:meth:`Surrogate._transition_velocity`, below its stick velocity)."""
-    v = model._transition_velocity()
+    finds them (:attr:`Surrogate.transition_velocity`, below its stick velocity)."""
+    v = model.transition_velocity
     stuck = np.abs(v) < model.stick_velocity
     return _events(v, stuck)
 
@@ -246,7 +249,7 @@ def find_windows(model: Surrogate, theta: dict[str, float], *, max_windows: int 
                  substeps: int = SUBSTEPS, post_s: float = POST_S, part: str = "all") -> Windows:
     """The windows of ``model``'s log around its low-speed events, with the forward model's forcing at ``theta``
     (module docstring). ``part``: the windows lie in the fit part, the held-out part, or either ('all')."""
-    if model.kind == TESTBED:
+    if model.testbed:
         raise ValueError("the windowed Stribeck fit is for a rigid joint (the testbed's friction is LuGre)")
     d = model.data
     n, dt = len(d.t_full), d.dt
@@ -259,7 +262,7 @@ def find_windows(model: Surrogate, theta: dict[str, float], *, max_windows: int 
     # still: the raw position within REST_STEPS encoder steps from REST_BEFORE_S before to REST_LEAD_S after
     span = before_rest + lead_rest + 1
     origin = (before_rest - lead_rest) // 2  # centre the filters' footprint on [i - before, i + lead]
-    v = model._transition_velocity()
+    v = model.transition_velocity
     stuck = np.abs(v) < model.stick_velocity
     # the encoder's noise where the joint is still (a moving joint's quantisation is no noise of a still one)
     noise = white_noise_std(y[stuck]) if stuck.sum() > 8 else 0.0
@@ -521,16 +524,16 @@ def _sandwich(jac: np.ndarray, r: np.ndarray, cluster: np.ndarray, clusters: int
     return bread, robust
 
 
-def fit_stribeck(model: Surrogate, theta: dict[str, float], *, max_windows: int = MAX_WINDOWS,
-                 substeps: int = SUBSTEPS, post_s: float = POST_S, part: str = "all",
-                 fit_initial_velocity: bool = True, exclude_z: float = EXCLUDE_Z,
-                 profile_points: int = PROFILE_POINTS) -> WindowFit:
+def fit_stribeck(model: Surrogate, theta: dict[str, float], velocity_range: tuple[float, float],
+                 breakaway_high: float, *, max_windows: int = MAX_WINDOWS, substeps: int = SUBSTEPS,
+                 post_s: float = POST_S, part: str = "all", fit_initial_velocity: bool = True,
+                 exclude_z: float = EXCLUDE_Z, profile_points: int = PROFILE_POINTS) -> WindowFit:
     """Fit a rigid joint's breakaway level F_s and Stribeck velocity v_s by the output error of windows simulated
     around its low-speed events (module docstring), every other parameter at ``theta``'s values (a full parameter
     vector of the surrogate: its inertia, Coulomb and viscous levels, command path and effects' loads).
 
     ``part`` chooses the windows' part of the log ('fit', 'held' or 'all'); F_s is searched from the Coulomb level
-    up to the effect's bound, v_s over the effect's range.
+    up to ``breakaway_high``, v_s over ``velocity_range`` [rad/s | m/s] (the effect's bounds).
 
     Raises
     ------
@@ -539,11 +542,10 @@ def fit_stribeck(model: Surrogate, theta: dict[str, float], *, max_windows: int 
     """
     start_time = time.perf_counter()
     windows = find_windows(model, theta, max_windows=max_windows, substeps=substeps, post_s=post_s, part=part)
-    effect = EFFECTS["stribeck_friction"]
-    v_low, v_high = effect.bounds("stribeck_velocity", model.scale, theta)
+    v_low, v_high = velocity_range
     f_low = theta["coulomb"]
     unit = f_low if f_low > 0 else BREAKAWAY_SCALE_OF_EFFORT * model.scale.effort
-    f_high = max(effect.bounds("breakaway", model.scale, theta)[1], f_low + unit)
+    f_high = max(breakaway_high, f_low + unit)
     problem = _Problem(windows, theta, unit, v_low, fit_initial_velocity)
     grid = np.linspace(math.log(v_low), math.log(v_high), profile_points)
     # the profile on the grid: for each v_s the F_s of a scan of levels that fits best, bracketed by its neighbours
@@ -647,3 +649,38 @@ def _interval(log_vs: np.ndarray, z: np.ndarray, limit: float, best: float, join
     if high_end:
         return (low, high), False, f"v_s above {low:.3g} {unit}"
     return (low, high), True, ""
+
+
+# ------------------------------------------------------------------------------------------ the held-out channel
+
+LOW_SPEED = "low_speed"  # the residual channel of the windows' position error [rad | m]
+
+
+def position_error(model: Surrogate, theta: dict[str, float], velocity_floor: float, part: str = "held"
+                   ) -> tuple[np.ndarray, int] | None:
+    """The windows' position error at ``theta`` on the analysis grid: for each grid sample, the RMS of the
+    measured minus the simulated position over the window samples that fall on it (the sliding windows' start
+    velocities corrected as in the fit), NaN where no window sample does [rad | m]; and the number of windows of
+    ``part``. None where the part has no window. ``velocity_floor`` [rad/s | m/s]: the Stribeck velocity of a
+    model without a Stribeck drop (any: the drop is nil), and the floor of the start-velocity corrections' steps.
+
+    The static level is the surrogate's (:meth:`Surrogate.static_level`: a rig with one dry level breaks away at
+    its Coulomb level); the channel lets an effect's evidence at the low-speed events, which the effort balance
+    leaves out, be scored like the balance's own channels."""
+    try:
+        windows = find_windows(model, theta, part=part)
+    except ValueError:
+        return None
+    scale = theta["coulomb"] if theta["coulomb"] > 0 else BREAKAWAY_SCALE_OF_EFFORT * model.scale.effort
+    problem = _Problem(windows, theta, scale, velocity_floor, True)
+    static = model.static_level(theta)
+    velocity = theta["stribeck_velocity"] if static > theta["coulomb"] else velocity_floor
+    r = problem.evaluate(np.array([static]), np.array([math.log(velocity)]))["rp"][0]
+    d = model.data
+    index = (windows.start[:, None] + np.arange(1, windows.measured.shape[1] + 1)[None, :])[windows.mask]
+    cell = np.minimum(index // d.grid_step, len(d.grid) - 1)
+    squares = np.bincount(cell, weights=r[windows.mask] ** 2, minlength=len(d.grid))
+    counts = np.bincount(cell, minlength=len(d.grid))
+    with np.errstate(invalid="ignore", divide="ignore"):
+        out = np.where(counts > 0, np.sqrt(squares / np.maximum(counts, 1)), np.nan)
+    return out, windows.count

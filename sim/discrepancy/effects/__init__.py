@@ -20,6 +20,7 @@ from sim.discrepancy.effects.base import (
     SLIDE,
     TESTBED,
     Effect,
+    OwnFit,
     Param,
     Realisation,
     Scale,
@@ -59,5 +60,5 @@ def effect_of_key(key: str) -> Effect:
     raise KeyError(f"no effect owns parameter {key!r}")
 
 
-__all__ = ["ALL_RIGS", "EFFECTS", "HINGE", "RIGID_RIGS", "SLIDE", "TESTBED", "Effect", "Param", "Realisation",
+__all__ = ["ALL_RIGS", "EFFECTS", "HINGE", "RIGID_RIGS", "SLIDE", "TESTBED", "Effect", "OwnFit", "Param", "Realisation",
            "Scale", "effect_of_key", "rig_kind", "spec"]

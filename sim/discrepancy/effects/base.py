@@ -13,6 +13,7 @@ all of it:
 ``load``             the effort the joint needs for the effect [N·m | N], added to the model's balance
 ``sensor``           what the effect adds to the torque sensor's reading [N·m]
 ``starts``           starting values of a fit (grids, or linear sub-problems solved directly)
+``fit``              a fit of its own where the surrogate's least squares cannot see the effect (Stribeck)
 ``identifiable``     whether the log can reveal it, and if not, why
 ``simpler``          the simpler law its fitted parameters make it over the span of the log, if any
 ``signature``        the signal whose correlation with the residual points at it (diagnostics)
@@ -131,6 +132,17 @@ class Scale:
 
 
 @dataclass(frozen=True)
+class OwnFit:
+    """An effect's parameters fitted a way of their own (:meth:`Effect.fit`): values and standard errors (theta
+    keys, SI units), and what the fit adds to the report."""
+
+    values: dict[str, float]
+    errors: dict[str, float]
+    details: dict = field(default_factory=dict)
+    unresolved: tuple[str, ...] = ()  # parameters the log bounds from one side only: stated, not refused at a bound
+
+
+@dataclass(frozen=True)
 class Realisation:
     """How a MuJoCo simulation of a rig carries an effect (anything left None is not used).
 
@@ -178,6 +190,8 @@ class Effect:
     # step than the 16-bit one resolves its motion)
     revealing_experiment: ClassVar[str]
     needs_fine_motor_encoder: ClassVar[bool] = False
+    low_speed_evidence: ClassVar[bool] = False  # a rigid joint: scored on the low-speed windows' position error
+    # too (sim.discrepancy.windows), where the effort balance leaves its evidence out
     any_size: ClassVar[bool] = False  # rule 'size' asks only that it change the effort by more than the encoder's
     # resolution leaves, not by min_effort_change of the command (a dead time matters at any size)
     explains_at_bound: ClassVar[bool] = True  # a fit at its bound is a near explanation (not: a gain that only
@@ -235,6 +249,12 @@ class Effect:
             step = max(0.3 * abs(value), 0.01 * span)
             starts += [{p.key: min(max(value + s, low), high)} for s in (-step, step)]
         return starts, ()
+
+    def fit(self, model: Surrogate, theta: dict[str, float], mask: np.ndarray | None = None) -> OwnFit | None:
+        """Fit the effect's parameters a way of their own on ``mask`` (default the fit part), every other parameter
+        at ``theta``'s values (the selection then re-fits those with them); None (default): the surrogate's least
+        squares from :meth:`starts`, jointly with the others."""
+        return None
 
     def canonical(self, theta: dict[str, float], joint: str) -> dict[str, float]:
         """One representative of parameter sets that describe the same physics (default: ``theta``)."""

@@ -2,7 +2,14 @@
 
 The sliding friction is ``F_c + (F_s - F_c)·exp(-(v/v_s)²)``: the breakaway level ``F_s`` at rest, the Coulomb
 level ``F_c`` well above the Stribeck velocity ``v_s``. A rig without the effect has ``F_s = F_c`` (its Stribeck
-velocity is then irrelevant); its fit starts from a grid of velocities scaled to the log's, not from the rig's.
+velocity is then irrelevant).
+
+On the testbed the surrogate's LuGre balance shows it; its fit starts from a grid of velocities scaled to the
+log's. A rigid joint passes its low speeds at breakaways and reversals, inside the guards its effort balance leaves
+out: there F_s and v_s are fitted by the output error of short windows simulated around those events
+(:mod:`sim.discrepancy.windows`), every other parameter re-fitted on the balance with them, and the candidate is
+scored on the held-out windows' position error beside the balance. Where the windows do not bound v_s from below
+(the joint never slides slowly enough to show it), the breakaway is named and the bound they put on v_s stated.
 """
 
 from __future__ import annotations
@@ -11,12 +18,16 @@ import math
 
 import numpy as np
 
-from sim.discrepancy.effects.base import Effect, Param, needs_sliding
+from sim.discrepancy.effects.base import Effect, OwnFit, Param, needs_sliding
+from sim.discrepancy.windows import find_windows, fit_stribeck
 
 BREAKAWAY_UP = (1.308, 1.923)  # synthetic draws: x F_s (the testbed), x F_c (a rigid joint)
 STRIBECK_VELOCITY_SPAN = (0.4, 2.0)  # the testbed: x v_s
 RIGID_STRIBECK_VELOCITY = {"hinge": (0.05, 0.2), "slide": (0.005, 0.02)}  # a rigid joint: v_s [rad/s | m/s]
-MIN_LOW_SPEED_FRACTION = 0.02  # >= 2 % of the samples sliding between v_s/3 and 3·v_s (or in the low-speed range)
+MIN_LOW_SPEED_FRACTION = 0.02  # the testbed: >= 2 % of the samples sliding between v_s/3 and 3·v_s (or in the
+# low-speed range)
+MIN_WINDOWS = 4  # a rigid joint: at least this many low-speed windows in each of the fit and held-out parts
+NO_DROP = 1e-3  # a breakaway within this fraction of the Coulomb level is no Stribeck drop (rule 'simpler')
 LOW_SPEED_RANGE = (1e-3, 0.3)  # without a stated v_s: the Stribeck velocity is looked for in this x |v|_max
 MAX_LEVEL_OF_EFFORT = 2.0
 VELOCITY_GRID = (0.3, 1.0, 3.0)  # starts around a stated v_s
@@ -45,6 +56,7 @@ class StribeckFriction(Effect):
     signature = "low-speed sign (Stribeck)"
     order = 12
     refined_starts = VELOCITY_STARTS
+    low_speed_evidence = True
 
     def present(self, theta):
         return stated(theta)
@@ -70,10 +82,30 @@ class StribeckFriction(Effect):
             starts.append(min(options, key=lambda start: model.cost({**theta, **start})))
         return starts, ()
 
+    def fit(self, model, theta, mask=None):
+        """A rigid joint: F_s and v_s by the low-speed windows of the part ``mask`` selects (the fit part, or the
+        held-out part); the testbed: None (least squares of its LuGre balance)."""
+        if model.testbed:
+            return None
+        windows = fit_stribeck(model, theta, self.bounds("stribeck_velocity", model.scale, theta),
+                               self.bounds("breakaway", model.scale, theta)[1],
+                               part="held" if mask is model.data.held else "fit")
+        return OwnFit({"breakaway": windows.breakaway, "stribeck_velocity": windows.stribeck_velocity},
+                      {"breakaway": windows.breakaway_se, "stribeck_velocity": windows.stribeck_velocity_se},
+                      {k: v for k, v in windows.to_dict().items() if k != "profile"},
+                      () if windows.resolved else ("stribeck_velocity",))
+
+    def simpler(self, model, theta):
+        if theta["breakaway"] <= (1.0 + NO_DROP) * theta["coulomb"]:
+            return "coulomb_friction", "its breakaway level is its Coulomb level (no drop)"
+        return None
+
     def identifiable(self, model, theta):
         why = needs_sliding(model)
         if why:
             return why
+        if not model.testbed:
+            return self._too_few_windows(model, theta)
         v = np.abs(model.data.velocity)
         if stated(model.scale.baseline):
             vs = theta["stribeck_velocity"]
@@ -88,6 +120,21 @@ class StribeckFriction(Effect):
                     f"reversals shows them within the guards around stick-slip transitions)")
         if not stated(model.scale.baseline):
             return self._too_small(model, theta)
+        return None
+
+    def _too_few_windows(self, model, theta):
+        """A rigid joint: why its low-speed windows cannot show a Stribeck drop (or None)."""
+        if not theta["coulomb"] > 0.0:
+            return "the model has no sliding friction level yet to refer a breakaway to"
+        counts = {}
+        for part in ("fit", "held"):
+            try:
+                counts[part] = find_windows(model, theta, part=part).count
+            except ValueError:
+                counts[part] = 0
+        if min(counts.values()) < MIN_WINDOWS:
+            return (f"{counts['fit']} and {counts['held']} low-speed windows (breakaways from rest, reversals after "
+                    f"sliding) in the fit and held-out parts (needs {MIN_WINDOWS} in each)")
         return None
 
     def _too_small(self, model, theta):

@@ -66,6 +66,7 @@ from sim.discrepancy.signals import (
     smallest_step,
 )
 from sim.discrepancy.structure import Structure, residual_structure
+from sim.discrepancy.windows import LOW_SPEED
 from sim.runlog import COMMAND, RunLog
 
 CHANNEL_MEANING = {
@@ -617,8 +618,11 @@ def _chain(first: Stage, final: Stage, confident: list[Finding]) -> list[Finding
         score = held_out_score(final.model, theta)
         channel = f.evidence["channel"] if f.evidence["channel"] in score.rmse else "effort"
         before, after = previous.rmse[channel], score.rmse[channel]
-        out.append(replace(f, parameters=_parameters(f.effect, rig_values, final.theta, first.model),
-                           rmse_heldout_before=before, rmse_heldout_after=after,
+        parameters = _parameters(f.effect, rig_values, final.theta, first.model)
+        windows = (f.evidence.get(LOW_SPEED) or {}).get("fit") or {}
+        if windows and not windows["resolved"]:  # the log bounds it from one side only: stated
+            parameters["stribeck_velocity"].update(resolved=False, bound=windows["bound"])
+        out.append(replace(f, parameters=parameters, rmse_heldout_before=before, rmse_heldout_after=after,
                            gain=1.0 - after / before if before > 0 else 0.0))
         previous = score
     return out
@@ -701,10 +705,14 @@ def _evidence(best: Candidate, model: Surrogate, theta: dict[str, float], channe
     effect = EFFECTS[best.effect]
     residual = model.residuals(theta).get(effect.channel)
     correlation = None if residual is None else effect.evidence(model, theta, residual, model.data.held)
-    return {"signature": effect.signature, "channel": effect.channel, "correlation_before": correlation,
-            "delta_bic": best.delta_bic, "event_z": best.event_z, "improved_block_share": best.improved_block_share,
-            "gains_by_channel": best.gains, "held_out_parameters": best.held_out_parameters,
-            "model_log_parameters": best.model_log_parameters}
+    out = {"signature": effect.signature, "channel": effect.channel, "correlation_before": correlation,
+           "delta_bic": best.delta_bic, "event_z": best.event_z, "improved_block_share": best.improved_block_share,
+           "gains_by_channel": best.gains, "held_out_parameters": best.held_out_parameters,
+           "model_log_parameters": best.model_log_parameters}
+    if LOW_SPEED in best.score.rmse:  # the held-out low-speed windows' position error, and the windows' own fit
+        out[LOW_SPEED] = {"rmse_before": best.before_rmse[LOW_SPEED], "rmse_after": best.score.rmse[LOW_SPEED],
+                          "unit": "m" if model.rig.joint == "slide" else "rad", "fit": best.details}
+    return out
 
 
 def _alternatives(best: Candidate, scores: list[Candidate], channel: str) -> list[dict]:

@@ -26,6 +26,8 @@ def _value(entry: dict) -> str:
     if "bounds" in entry:
         low, high = entry["bounds"]
         notes.append(f"fit range [{low:.4g}, {high:.4g}]")
+    if "bound" in entry:
+        notes.append(f"not resolved: {entry['bound']}")
     return text + (f" ({'; '.join(notes)})" if notes else "")
 
 
@@ -90,6 +92,15 @@ def format_result(result: DiscrepancyResult) -> str:
                          f"events z {ev['event_z']:.2f}"
                          + (f"; '{ev['signature']}' correlates {correlation:+.3f} with the residual before"
                             if correlation is not None and math.isfinite(correlation) else ""))
+            low = ev.get("low_speed")
+            if low:
+                fit = low.get("fit") or {}
+                lines.append(f"     low-speed windows held out: position error {low['rmse_before']:.3g} -> "
+                             f"{low['rmse_after']:.3g} {low['unit']} RMS"
+                             + (f"; fitted on {fit['windows']} windows of the fit part, "
+                                + (f"v_s within [{fit['interval'][0]:.3g}, {fit['interval'][1]:.3g}]"
+                                   if fit["resolved"] else f"{fit['bound']} (the log shows no slower sliding)")
+                                if fit else ""))
             for alt in ev.get("alternatives") or []:
                 lines.append(f"     the log tells it only weakly from {alt['effect']} (held-out "
                              f"{alt['rmse_heldout_after']:.4g} instead of {f.evidence['rmse_accepted']:.4g} when it "

@@ -9,8 +9,8 @@ fails is recorded as the reason (``Candidate.rejected_by``):
     where its fitted law degenerates into a simpler one over the span of the log (:meth:`Effect.simpler
     <sim.discrepancy.effects.base.Effect.simpler>`: a spring whose rest position lies outside the motion is a
     constant effort there, a resonance at the top of the analysis band a rigid inertia), it must pass the rules
-    ``bic``, ``gain`` and ``events`` against the model with the simpler law fitted instead; otherwise the simpler
-    law is the one to name (it is a candidate of its own);
+    ``bic``, ``gain``, ``size`` and ``events`` against the model with the simpler law fitted instead; otherwise the
+    simpler law is the one to name (it is a candidate of its own);
 ``bound``
     none of its parameters ends at a bound of its range (the range reported beside every value), and it drives
     none of the accepted parameters to a bound: a fit that wants a value the rig's scale makes implausible, or
@@ -328,7 +328,9 @@ def fit_candidate(model: Surrogate, effect: str, theta: dict[str, float], accept
         d_simpler, g_simpler = compare(plain, after, extra)
         gain_simpler = max(g_simpler.values()) if g_simpler else 0.0
         z_simpler, share_simpler = event_test(plain, after, block)
-        if not (d_simpler < -cfg.min_ic_drop and gain_simpler >= cfg.min_relative_gain
+        sized = (spec.channel != "effort" or effort_change(plain, after) >= smallest_change(model)
+                 or low_speed_change(plain, after) >= model.data.position_resolution)
+        if not (d_simpler < -cfg.min_ic_drop and gain_simpler >= cfg.min_relative_gain and sized
                 and passes_events(gain_simpler, z_simpler, share_simpler, cfg.min_event_z)):
             note = (f"over the span of the log it is {name}: {why}; against {name} it gains "
                     f"{100 * gain_simpler:.1f} % (ΔBIC {d_simpler:.1f})")

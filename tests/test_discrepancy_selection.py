@@ -102,3 +102,32 @@ def test_a_spectral_line_needs_five_periods_in_the_samples_it_is_found_in():
 def test_a_cogging_period_fits_five_times_in_the_position_range():
     periods = candidate_periods(_grid_model(2000), 1.0)
     assert len(periods) and periods.max() <= 1.0 / 5
+
+
+def test_a_friction_level_whose_gain_comes_only_from_stuck_samples_is_refused_as_degenerate():
+    """An independent simulator's point-to-point log whose logged command carries, during every dwell, a hold the
+    rig does not know (a brake, a detent at rest): raising the Coulomb level widens the stuck samples' band over it
+    and gains, while the sliding samples, which the rig explains, show no sign of the velocity. Refused by rule
+    'evidence', naming the correlation."""
+    import tomllib
+
+    from sim.discrepancy.analysis import read_stage
+    from sim.discrepancy.rig import rig_from_dict
+    from tests.independent import battery, rigsim
+
+    n = 20_000
+    values = battery.baseline("hinge", 71)
+    plant = battery.plant_of("hinge", values)
+    reference = battery.reference("hinge", "point_to_point", 71, n)
+    run = rigsim.simulate(plant, rigsim.PID.tuned(reference, values["mass"], 5.0, plant.peak_effort), n, seed=71)
+    log = run.to_log()
+    still = run.v_true == 0.0
+    dwell = np.cumsum(np.r_[0, np.diff(still.astype(int)) != 0])
+    hold = 2.4 * values["coulomb"] * np.where(dwell % 4 < 2, 1.0, -1.0)
+    log = type(log)({**log.columns, "tau_cmd": log["tau_cmd"] + np.where(still, hold, 0.0)}, log.units, log.meta)
+    rig = rig_from_dict(tomllib.loads(battery.rig_toml({"joint": "hinge", **values}, "the truth's")))
+    stage = read_stage((log,), ("log",), ["estimation"], rig, AnalysisConfig())
+    candidate = selection.fit_candidate(stage.model, "coulomb_friction", stage.theta, stage.keys, stage.scales,
+                                        stage.score)
+    assert candidate.gain > 0.05 and candidate.parameters["coulomb"] > 2 * values["coulomb"]
+    assert candidate.rejected_by == "evidence" and "correlation" in candidate.note

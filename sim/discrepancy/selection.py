@@ -16,6 +16,12 @@ fails is recorded as the reason (``Candidate.rejected_by``):
     none of the accepted parameters to a bound: a fit that wants a value the rig's scale makes implausible, or
     that only helps by shrinking the whole balance (an effort gain with every other term free), is not that
     effect;
+``evidence``
+    an effect whose term is its signature times a parameter (a friction level or coefficient, an inertia, a
+    constant: :attr:`Effect.linear_signature <sim.discrepancy.effects.base.Effect.linear_signature>`) must find
+    its signature in the held-out residual it is judged against: a correlation of at least MIN_EVIDENCE in
+    magnitude. A gain without it came by another way (a friction level whose band absorbs the residual of stuck
+    samples for a load the rig lacks) and the fit is degenerate;
 ``bic``
     the held-out BIC falls by more than ``min_ic_drop``:
     ``ΔBIC = Σ_c n_c·ln(RSS_c,after / RSS_c,before) + k·ln(n) < -min_ic_drop``, ``n_c`` the channel's independent
@@ -70,12 +76,14 @@ from sim.discrepancy.signals import AnalysisConfig
 from sim.discrepancy.windows import LOW_SPEED, position_error
 from sim.executor import Executor
 
-RULES = ("simpler", "bound", "bic", "gain", "size", "events", "moved", "stationary")
+RULES = ("simpler", "bound", "evidence", "bic", "gain", "size", "events", "moved", "stationary")
 LARGE_GAIN = 1.0 / 3.0  # a candidate explaining this much passes 'events' on the blocks it changes
 LARGE_GAIN_BLOCK_SHARE = 2.0 / 3.0  # ... if it improves this share of them
 MATERIAL_BLOCK_SHARE = 0.02  # a block changes materially if its |drop| is above 2 % of the summed |drops|
 MIN_BLOCKS = 4  # the block test needs at least four blocks
 MIN_BLOCKS_HELD = 8  # a short held-out part is cut into at least this many blocks
+MIN_EVIDENCE = 0.05  # rule 'evidence': the least |correlation| of a linear signature with the residual [1]
+# (the findings of the independent battery and its real-drive stand-ins show 0.32 or more)
 
 
 @dataclass(frozen=True)
@@ -319,7 +327,8 @@ def fit_candidate(model: Surrogate, effect: str, theta: dict[str, float], accept
     block = block_samples(model)
     z, share = event_test(before, after, block)
     change = effort_change(before, after)
-    note = ""
+    notes = {"bound": "at the " + "; ".join(f"{side} bound of {k}'s range [{outcome.bounds[k][0]:.4g}, "
+                                            f"{outcome.bounds[k][1]:.4g}]" for k, side in at_bound.items())}
     simpler = spec.simpler(model, outcome.theta)
     if simpler is not None:
         name, why = simpler
@@ -330,13 +339,21 @@ def fit_candidate(model: Surrogate, effect: str, theta: dict[str, float], accept
         z_simpler, share_simpler = event_test(plain, after, block)
         sized = (spec.channel != "effort" or effort_change(plain, after) >= smallest_change(model)
                  or low_speed_change(plain, after) >= model.data.position_resolution)
-        if not (d_simpler < -cfg.min_ic_drop and gain_simpler >= cfg.min_relative_gain and sized
-                and passes_events(gain_simpler, z_simpler, share_simpler, cfg.min_event_z)):
-            note = (f"over the span of the log it is {name}: {why}; against {name} it gains "
-                    f"{100 * gain_simpler:.1f} % (ΔBIC {d_simpler:.1f})")
-        else:
+        if d_simpler < -cfg.min_ic_drop and gain_simpler >= cfg.min_relative_gain and sized \
+                and passes_events(gain_simpler, z_simpler, share_simpler, cfg.min_event_z):
             simpler = None
-    checks = {"bound": not at_bound, "simpler": simpler is None, "bic": delta < -cfg.min_ic_drop,
+        else:
+            notes["simpler"] = (f"over the span of the log it is {name}: {why}; against {name} it gains "
+                                f"{100 * gain_simpler:.1f} % (ΔBIC {d_simpler:.1f})")
+    evidence = None
+    if spec.linear_signature:
+        evidence = spec.evidence(model, theta, model.residuals(theta)[spec.channel], model.data.held)
+    degenerate = evidence is not None and abs(evidence) < MIN_EVIDENCE
+    if degenerate:
+        notes["evidence"] = (f"degenerate: the residual does not follow '{spec.signature}' (correlation "
+                             f"{evidence:+.3f}), so its gain came by another way")
+    checks = {"bound": not at_bound, "simpler": simpler is None, "evidence": not degenerate,
+              "bic": delta < -cfg.min_ic_drop,
               "gain": gain >= cfg.min_relative_gain,
               "size": spec.channel != "effort" or change >= (model.resolution_floor if spec.any_size
                                                               else smallest_change(model))
@@ -344,9 +361,7 @@ def fit_candidate(model: Surrogate, effect: str, theta: dict[str, float], accept
               "events": passes_events(gain, z, share, cfg.min_event_z),
               "moved": moved_enough(effect, theta, outcome.theta, cfg.min_parameter_change)}
     rejected = next((rule for rule in RULES if not checks.get(rule, True)), None)
-    if rejected == "bound" and not note:
-        note = "at the " + "; ".join(f"{side} bound of {k}'s range [{outcome.bounds[k][0]:.4g}, "
-                                     f"{outcome.bounds[k][1]:.4g}]" for k, side in at_bound.items())
+    note = notes.get(rejected, "")
     candidate = Candidate(effect, outcome, after, delta, gains, z, share, rejected, 0.0, at_bound,
                           effort_change=change / model.command_rms if model.command_rms > 0 else float("nan"),
                           note=note, before_rmse=dict(before.rmse), details=outcome.details)

@@ -34,7 +34,8 @@ Forward model, all windows at once (windows, and the parameter sets of a batch, 
 the drive's limit and the effects' command maps), held over each sample, delayed by the dead time and scaled by
 the effort gain; each integration step (``substeps`` per sample) carries its exact mean. ``L`` is the sum of the
 model's loads (:meth:`Surrogate.loads`: gravity, cogging, springs, ...) on the measured motion, interpolated from
-the analysis grid. Friction is Karnopp stick-slip: a joint at rest (``v = 0``) stays while ``|u_d - L| <= F_s``
+the analysis grid, and the window's record's own zero where the model carries one (``record_offsets``). Friction
+is Karnopp stick-slip: a joint at rest (``v = 0``) stays while ``|u_d - L| <= F_s``
 and breaks away at ``±F_s`` from the instant the applied force crosses ``F_s`` (linear between steps, so the
 motion is continuous in ``F_s``); sliding, ``F_f = sign(v)·g(v) + σ2·v`` with ``g`` the Stribeck curve
 (:func:`sim.discrepancy.laws.stribeck_level`), integrated by Heun's method, the position by the step's mean
@@ -326,6 +327,9 @@ def _assemble(model: Surrogate, theta: dict[str, float], candidates: list[tuple[
     middle = d.t_full[starts][:, None] + steps[None, :-1] + 0.5 * h
     loads = model.loads(theta)
     load = np.interp(middle, d.t, loads) if np.ndim(loads) else np.full(middle.shape, float(loads))
+    zeros = model.record_offsets(theta).get("effort")
+    if zeros:  # each record's own zero of the logged effort (the effect record_offsets)
+        load = load + np.asarray(zeros)[_segment_of(model)[starts]][:, None]
     columns = np.arange(1, width + 1)
     mask = columns[None, :] <= lengths[:, None]
     index = np.minimum(starts[:, None] + columns[None, :], n - 1)

@@ -192,6 +192,9 @@ class Effect:
     needs_fine_motor_encoder: ClassVar[bool] = False
     low_speed_evidence: ClassVar[bool] = False  # a rigid joint: scored on the low-speed windows' position error
     # too (sim.discrepancy.windows), where the effort balance leaves its evidence out
+    linear_signature: ClassVar[bool] = False  # its term is its signature times a parameter (a level, a coefficient):
+    # a gain while the residual does not follow the signature came by another way (the stuck samples' band), and
+    # the fit is refused as degenerate (rule 'evidence')
     any_size: ClassVar[bool] = False  # rule 'size' asks only that it change the effort by more than the encoder's
     # resolution leaves, not by min_effort_change of the command (a dead time matters at any size)
     explains_at_bound: ClassVar[bool] = True  # a fit at its bound is a near explanation (not: a gain that only

@@ -35,6 +35,7 @@ class ConstantEffort(Effect):
     params = (Param("constant_effort", "N·m", "N", "constant effort the joint needs c (positive: against positive "
                     "motion)", fields={HINGE: "constant_effort", SLIDE: "constant_effort"}, valid=(-1e6, 1e6)),)
     signature = "constant (mean while sliding)"
+    linear_signature = True
     order = 13
 
     def bounds(self, key, scale, theta):

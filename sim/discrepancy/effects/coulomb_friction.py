@@ -20,6 +20,7 @@ class CoulombFriction(Effect):
                     fields={"testbed": "friction.coulomb_torque_nm", "hinge": "friction.coulomb",
                             "slide": "friction.coulomb"}, valid=(0.0, 1e4)),)
     signature = "sign of velocity"
+    linear_signature = True
     order = 10
 
     def bounds(self, key, scale, theta):

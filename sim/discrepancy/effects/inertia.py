@@ -17,6 +17,7 @@ class Inertia(Effect):
                     fields={"testbed": "motor.rotor_inertia_kgm2", "hinge": "inertia_kgm2", "slide": "mass_kg"},
                     valid=(0.0, 1e6)),)
     signature = "acceleration"
+    linear_signature = True
     order = 1
 
     def bounds(self, key, scale, theta):

@@ -22,6 +22,7 @@ class QuadraticDrag(Effect):
     description = "effort growing with the square of the velocity (fluid drag, fans)"
     params = (Param("drag_coefficient", "N·m·s²/rad²", "N·s²/m²", "drag coefficient c of c·v·|v|"),)
     signature = "velocity squared (v|v|)"
+    linear_signature = True
     order = 14
 
     def bounds(self, key, scale, theta):

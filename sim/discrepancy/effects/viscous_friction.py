@@ -16,6 +16,7 @@ class ViscousFriction(Effect):
                     fields={"testbed": "friction.viscous_nms_per_rad", "hinge": "friction.viscous",
                             "slide": "friction.viscous"}, valid=(0.0, 1e6)),)
     signature = "velocity"
+    linear_signature = True
     order = 11
 
     def bounds(self, key, scale, theta):

@@ -160,7 +160,8 @@ class Surrogate:
         self.testbed = self.kind == TESTBED
         self.const = testbed_constants(self.rig) if self.testbed else {}
         self.theta0 = baseline_theta(self.rig)
-        self.effects = [e for e in EFFECTS.values() if e.applies(self.rig)]
+        records = max(len(d.bounds), 1)
+        self.effects = [e for e in EFFECTS.values() if e.applies(self.rig) and records >= e.min_records]
         self._hooks = {hook: [e for e in self.effects if _overrides(e, hook)]
                        for hook in ("command", "load", "lever_load", "sensor")}
         self._cache: dict[str, OrderedDict] = {}

@@ -192,6 +192,7 @@ class Effect:
     needs_fine_motor_encoder: ClassVar[bool] = False
     low_speed_evidence: ClassVar[bool] = False  # a rigid joint: scored on the low-speed windows' position error
     # too (sim.discrepancy.windows), where the effort balance leaves its evidence out
+    min_records: ClassVar[int] = 1  # the fewest records (logs) of one rig an analysis needs to consider it
     linear_signature: ClassVar[bool] = False  # its term is its signature times a parameter (a level, a coefficient):
     # a gain while the residual does not follow the signature came by another way (the stuck samples' band), and
     # the fit is refused as degenerate (rule 'evidence')

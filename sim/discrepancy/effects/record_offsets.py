@@ -25,6 +25,7 @@ class RecordOffsets(Effect):
                     "records share one", valid=(0.0, 1.0), firm=True),)
     signature = "a constant per record"
     order = 14
+    min_records = MIN_RECORDS
 
     def bounds(self, key, scale, theta):
         return 0.0, 1.0

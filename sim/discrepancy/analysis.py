@@ -587,10 +587,10 @@ def final_model(first: Stage, read: Callable[[Rig], Stage], findings: list[Findi
         if judged.passes:
             confident.append(delay)
             theta = judged.fit.theta
-            notes.pop("transport_delay", None)
+            convention += "; the dead time beyond that sample is a finding"
         else:
-            notes["transport_delay"] = (f"one sample of it is the time convention; the {1e3 * (extra - hold):+.3g} ms "
-                                        f"beyond is refused by rule '{judged.rejected_by}'")
+            convention += (f"; the {1e3 * (extra - hold):+.3g} ms beyond that sample are no finding (refused by rule "
+                           f"'{judged.rejected_by}')")
     extended = _extended_rig(stage.rig, theta0, theta, confident, stage.model)
     saved = rig_from_dict(tomllib.loads(rig_to_toml(extended)), source=first.rig.source)
     final = read(saved)

@@ -708,7 +708,7 @@ def _evidence(best: Candidate, model: Surrogate, theta: dict[str, float], channe
     out = {"signature": effect.signature, "channel": effect.channel, "correlation_before": correlation,
            "delta_bic": best.delta_bic, "event_z": best.event_z, "improved_block_share": best.improved_block_share,
            "gains_by_channel": best.gains, "held_out_parameters": best.held_out_parameters,
-           "model_log_parameters": best.model_log_parameters}
+           "model_log_parameters": best.model_log_parameters, "signature_share": best.signature_share}
     if LOW_SPEED in best.score.rmse:  # the held-out low-speed windows' position error, and the windows' own fit
         out[LOW_SPEED] = {"rmse_before": best.before_rmse[LOW_SPEED], "rmse_after": best.score.rmse[LOW_SPEED],
                           "unit": "m" if model.rig.joint == "slide" else "rad", "fit": best.details}

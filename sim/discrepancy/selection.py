@@ -19,9 +19,9 @@ fails is recorded as the reason (``Candidate.rejected_by``):
 ``evidence``
     an effect whose term is its signature times a parameter (a friction level or coefficient, an inertia, a
     constant: :attr:`Effect.linear_signature <sim.discrepancy.effects.base.Effect.linear_signature>`) must find
-    its signature in the held-out residual it is judged against: a correlation of at least MIN_EVIDENCE in
-    magnitude. A gain without it came by another way (a friction level whose band absorbs the residual of stuck
-    samples for a load the rig lacks) and the fit is degenerate;
+    its signature in the held-out residual it is judged against: a correlation about zero of at least
+    MIN_EVIDENCE in magnitude (:func:`signature_share`). A gain without it came by another way (a friction level
+    whose band absorbs the residual of stuck samples for a load the rig lacks) and the fit is degenerate;
 ``bic``
     the held-out BIC falls by more than ``min_ic_drop``:
     ``ΔBIC = Σ_c n_c·ln(RSS_c,after / RSS_c,before) + k·ln(n) < -min_ic_drop``, ``n_c`` the channel's independent
@@ -115,6 +115,7 @@ class Candidate:
     model_log_parameters: dict[str, float] | None = None  # fitted on the model's own log ('moved')
     note: str = ""
     before_rmse: dict[str, float] = field(default_factory=dict)  # the current model's, per channel scored
+    signature_share: float | None = None  # rule 'evidence': how much the residual follows its signature [1]
     details: dict[str, Any] | None = None  # what the effect's own fit adds (its low-speed windows)
 
     @property
@@ -139,8 +140,24 @@ class Candidate:
                 "improved_block_share": self.improved_block_share, "passes": self.passes,
                 "rejected_by": self.rejected_by, "at_bound": self.at_bound, "parameters": self.parameters,
                 "held_out_parameters": self.held_out_parameters,
-                "model_log_parameters": self.model_log_parameters, "note": self.note, "seconds": self.seconds,
+                "model_log_parameters": self.model_log_parameters, "signature_share": self.signature_share,
+                "note": self.note, "seconds": self.seconds,
                 **({"details": self.details} if self.details else {})}
+
+
+def signature_share(model: Surrogate, effect: str, theta: dict[str, float]) -> float | None:
+    """How much the held-out residual of ``theta`` follows ``effect``'s signature: their correlation about zero,
+    Σ r·s / sqrt(Σ r² · Σ s²) [1] (not about their means: a joint sliding one way has a constant sign of velocity,
+    which a level error follows entirely). None without a signature."""
+    spec = EFFECTS[effect]
+    signal = spec.signature_signal(model, theta)
+    if signal is None:
+        return None
+    residual = model.residuals(theta)[spec.channel]
+    mask = model.data.held & np.isfinite(residual)
+    r, s = residual[mask], np.broadcast_to(signal, residual.shape)[mask]
+    scale = math.sqrt(float(r @ r) * float(s @ s))
+    return float(r @ s) / scale if scale > 0 else 0.0
 
 
 def smallest_change(model: Surrogate) -> float:
@@ -345,13 +362,11 @@ def fit_candidate(model: Surrogate, effect: str, theta: dict[str, float], accept
         else:
             notes["simpler"] = (f"over the span of the log it is {name}: {why}; against {name} it gains "
                                 f"{100 * gain_simpler:.1f} % (ΔBIC {d_simpler:.1f})")
-    evidence = None
-    if spec.linear_signature:
-        evidence = spec.evidence(model, theta, model.residuals(theta)[spec.channel], model.data.held)
+    evidence = signature_share(model, effect, theta) if spec.linear_signature else None
     degenerate = evidence is not None and abs(evidence) < MIN_EVIDENCE
     if degenerate:
-        notes["evidence"] = (f"degenerate: the residual does not follow '{spec.signature}' (correlation "
-                             f"{evidence:+.3f}), so its gain came by another way")
+        notes["evidence"] = (f"degenerate: the residual does not follow '{spec.signature}' (their correlation "
+                             f"about zero is {evidence:+.3f}), so its gain came by another way")
     checks = {"bound": not at_bound, "simpler": simpler is None, "evidence": not degenerate,
               "bic": delta < -cfg.min_ic_drop,
               "gain": gain >= cfg.min_relative_gain,
@@ -364,7 +379,8 @@ def fit_candidate(model: Surrogate, effect: str, theta: dict[str, float], accept
     note = notes.get(rejected, "")
     candidate = Candidate(effect, outcome, after, delta, gains, z, share, rejected, 0.0, at_bound,
                           effort_change=change / model.command_rms if model.command_rms > 0 else float("nan"),
-                          note=note, before_rmse=dict(before.rmse), details=outcome.details)
+                          note=note, before_rmse=dict(before.rmse), details=outcome.details,
+                          signature_share=evidence)
     if rejected is None:
         candidate = stationarity(model, candidate, theta, accepted, scales)
     return replace(candidate, seconds=time.perf_counter() - start)

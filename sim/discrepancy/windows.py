@@ -83,6 +83,7 @@ if TYPE_CHECKING:
     from sim.discrepancy.model import Surrogate
 
 MAX_WINDOWS = 40  # windows per fit, spread over the log's events
+MIN_WINDOWS = 4  # a log shows its low speeds in windows with at least this many in each of its fit and held-out parts
 SUBSTEPS = 2  # integration steps per sample of the log
 REST_LEAD_S = 0.02  # a window at rest starts this long before the position first moves [s]
 REST_BEFORE_S = 0.02  # ... and the position has been still for this long before the start [s]
@@ -655,6 +656,17 @@ def _interval(log_vs: np.ndarray, z: np.ndarray, limit: float, best: float, join
     return (low, high), True, ""
 
 
+def window_counts(model: Surrogate, theta: dict[str, float]) -> dict[str, int]:
+    """The windows of the fit and the held-out part ({'fit': n, 'held': n}; 0 where a part has none)."""
+    counts = {}
+    for part in ("fit", "held"):
+        try:
+            counts[part] = find_windows(model, theta, part=part).count
+        except ValueError:
+            counts[part] = 0
+    return counts
+
+
 # ------------------------------------------------------------------------------------------ the held-out channel
 
 LOW_SPEED = "low_speed"  # the residual channel of the windows' position error [rad | m]
@@ -665,8 +677,9 @@ def position_error(model: Surrogate, theta: dict[str, float], velocity_floor: fl
     """The windows' position error at ``theta`` on the analysis grid: for each grid sample, the RMS of the
     measured minus the simulated position over the window samples that fall on it (the sliding windows' start
     velocities corrected as in the fit), NaN where no window sample does [rad | m]; and the number of windows of
-    ``part``. None where the part has no window. ``velocity_floor`` [rad/s | m/s]: the Stribeck velocity of a
-    model without a Stribeck drop (any: the drop is nil), and the floor of the start-velocity corrections' steps.
+    ``part``. None where the part has fewer than MIN_WINDOWS. ``velocity_floor`` [rad/s | m/s]: the Stribeck
+    velocity of a model without a Stribeck drop (any: the drop is nil), and the floor of the start-velocity
+    corrections' steps.
 
     The static level is the surrogate's (:meth:`Surrogate.static_level`: a rig with one dry level breaks away at
     its Coulomb level); the channel lets an effect's evidence at the low-speed events, which the effort balance
@@ -674,6 +687,8 @@ def position_error(model: Surrogate, theta: dict[str, float], velocity_floor: fl
     try:
         windows = find_windows(model, theta, part=part)
     except ValueError:
+        return None
+    if windows.count < MIN_WINDOWS:
         return None
     scale = theta["coulomb"] if theta["coulomb"] > 0 else BREAKAWAY_SCALE_OF_EFFORT * model.scale.effort
     problem = _Problem(windows, theta, scale, velocity_floor, True)

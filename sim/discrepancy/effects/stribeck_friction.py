@@ -19,14 +19,13 @@ import math
 import numpy as np
 
 from sim.discrepancy.effects.base import Effect, OwnFit, Param, needs_sliding
-from sim.discrepancy.windows import find_windows, fit_stribeck
+from sim.discrepancy.windows import MIN_WINDOWS, fit_stribeck, window_counts
 
 BREAKAWAY_UP = (1.308, 1.923)  # synthetic draws: x F_s (the testbed), x F_c (a rigid joint)
 STRIBECK_VELOCITY_SPAN = (0.4, 2.0)  # the testbed: x v_s
 RIGID_STRIBECK_VELOCITY = {"hinge": (0.05, 0.2), "slide": (0.005, 0.02)}  # a rigid joint: v_s [rad/s | m/s]
 MIN_LOW_SPEED_FRACTION = 0.02  # the testbed: >= 2 % of the samples sliding between v_s/3 and 3·v_s (or in the
 # low-speed range)
-MIN_WINDOWS = 4  # a rigid joint: at least this many low-speed windows in each of the fit and held-out parts
 NO_DROP = 1e-3  # a breakaway within this fraction of the Coulomb level is no Stribeck drop (rule 'simpler')
 LOW_SPEED_RANGE = (1e-3, 0.3)  # without a stated v_s: the Stribeck velocity is looked for in this x |v|_max
 MAX_LEVEL_OF_EFFORT = 2.0
@@ -83,9 +82,12 @@ class StribeckFriction(Effect):
         return starts, ()
 
     def fit(self, model, theta, mask=None):
-        """A rigid joint: F_s and v_s by the low-speed windows of the part ``mask`` selects (the fit part, or the
-        held-out part); the testbed: None (least squares of its LuGre balance)."""
-        if model.testbed:
+        """A rigid joint with enough low-speed windows (:meth:`windowed`): F_s and v_s by the windows of the part
+        ``mask`` selects (the fit part, default, or the held-out part); otherwise None (least squares of the
+        balance: the testbed's LuGre, a rigid joint's low speeds away from its transitions)."""
+        if mask is not None and mask is not model.data.fit and mask is not model.data.held:
+            raise ValueError("the Stribeck windows are fitted on the fit part or the held-out part")
+        if not self.windowed(model, theta):
             return None
         windows = fit_stribeck(model, theta, self.bounds("stribeck_velocity", model.scale, theta),
                                self.bounds("breakaway", model.scale, theta)[1],
@@ -94,6 +96,11 @@ class StribeckFriction(Effect):
                       {"breakaway": windows.breakaway_se, "stribeck_velocity": windows.stribeck_velocity_se},
                       {k: v for k, v in windows.to_dict().items() if k != "profile"},
                       () if windows.resolved else ("stribeck_velocity",))
+
+    def windowed(self, model, theta) -> bool:
+        """Whether a rigid joint's log has at least MIN_WINDOWS low-speed windows in each of its fit and held-out
+        parts (:func:`sim.discrepancy.windows.window_counts`); the testbed never."""
+        return not model.testbed and min(window_counts(model, theta).values()) >= MIN_WINDOWS
 
     def simpler(self, model, theta):
         if theta["breakaway"] <= (1.0 + NO_DROP) * theta["coulomb"]:
@@ -105,7 +112,10 @@ class StribeckFriction(Effect):
         if why:
             return why
         if not model.testbed:
-            return self._too_few_windows(model, theta)
+            if not theta["coulomb"] > 0.0:
+                return "the model has no sliding friction level yet to refer a breakaway to"
+            if self.windowed(model, theta):
+                return None
         v = np.abs(model.data.velocity)
         if stated(model.scale.baseline):
             vs = theta["stribeck_velocity"]
@@ -115,26 +125,14 @@ class StribeckFriction(Effect):
         counted = ~model.near_transition  # a rigid joint's samples next to a stick-slip transition do not count
         fraction = float(((v > low) & (v < high) & counted).mean())
         if fraction < MIN_LOW_SPEED_FRACTION:
+            windows = "" if model.testbed else (
+                "; and {fit} and {held} low-speed windows (breakaways from rest, reversals after sliding) in the fit "
+                "and held-out parts, where {need} in each show it".format(**window_counts(model, theta),
+                                                                        need=MIN_WINDOWS))
             return (f"only {100 * fraction:.1f} % of the samples that count slide between {low:.3g} and {high:.3g} "
-                    f"(needs {100 * MIN_LOW_SPEED_FRACTION:g} %; a joint that passes low speeds only at its "
-                    f"reversals shows them within the guards around stick-slip transitions)")
+                    f"(needs {100 * MIN_LOW_SPEED_FRACTION:g} %){windows}")
         if not stated(model.scale.baseline):
             return self._too_small(model, theta)
-        return None
-
-    def _too_few_windows(self, model, theta):
-        """A rigid joint: why its low-speed windows cannot show a Stribeck drop (or None)."""
-        if not theta["coulomb"] > 0.0:
-            return "the model has no sliding friction level yet to refer a breakaway to"
-        counts = {}
-        for part in ("fit", "held"):
-            try:
-                counts[part] = find_windows(model, theta, part=part).count
-            except ValueError:
-                counts[part] = 0
-        if min(counts.values()) < MIN_WINDOWS:
-            return (f"{counts['fit']} and {counts['held']} low-speed windows (breakaways from rest, reversals after "
-                    f"sliding) in the fit and held-out parts (needs {MIN_WINDOWS} in each)")
         return None
 
     def _too_small(self, model, theta):

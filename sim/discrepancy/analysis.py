@@ -308,10 +308,27 @@ def read_stage(logs: tuple[RunLog, ...], names: tuple[str, ...], roles: list[str
     refit = fit_keys(model, model.theta0, keys, scales)
     if refit.at_bound:
         refit = fit_keys(model, model.theta0, keys, scales, widen=WIDEN)
+    refit = _free_by_own_fits(model, refit, keys, scales)
     score = held_out_score(model, refit.theta)
     check_effort_balance(model, refit.theta, score.rmse["effort"])
     scales = {c: rms(r[data.fit]) or 1.0 for c, r in model.residuals(refit.theta).items()}
     return Stage(rig, sources, conventions, joined, segments, factor, data, model, refit, score, scales, keys)
+
+
+def _free_by_own_fits(model: Surrogate, refit: FitOutcome, keys: tuple[str, ...], scales: dict[str, float]
+                      ) -> FitOutcome:
+    """``refit`` with the free parameters of an effect that has a fit of its own (a rigid joint's Stribeck
+    friction, on its low-speed windows) taken from that fit, and the other keys re-fitted with them: the balance
+    cannot see them."""
+    for effect in model.effects:
+        own_free = [k for k in effect.keys if k in keys]
+        own = effect.fit(model, refit.theta) if own_free else None
+        if own is None:
+            continue
+        others = tuple(k for k in keys if k not in own_free)
+        again = fit_keys(model, {**refit.theta, **{k: own.values[k] for k in own_free}}, others, scales)
+        refit = replace(again, keys=keys, bounds={**refit.bounds, **again.bounds})
+    return refit
 
 
 def analyse(log: RunLog, rig: Rig, config: AnalysisConfig | None = None, *, progress: bool = False,
@@ -558,7 +575,6 @@ def final_model(first: Stage, read: Callable[[Rig], Stage], findings: list[Findi
     if delay is not None and unstated and low * hold <= extra <= high * hold:
         stage = read(replace(first.rig, time_convention=COMMAND))
         theta = {**stage.theta, **{k: v for k, v in current.items() if k not in stage.keys}}
-        theta["delay"] = max(theta0["delay"], current["delay"] - hold)
         confident = [f for f in confident if f is not delay]
         convention = (f"the logs act {1e3 * extra:.3g} ms late ({extra / hold:.2f} samples of {1e3 * hold:.3g} ms) "
                       f"and no rig or log states how their rows are stamped: they are read in the 'command' time "
@@ -584,25 +600,38 @@ def final_model(first: Stage, read: Callable[[Rig], Stage], findings: list[Findi
     if convention is not None and delay is not None:
         judged = fit_candidate(stage.model, "transport_delay", theta, keys, stage.scales,
                                held_out_score(stage.model, theta))
+        if judged.rejected_by == "stationary" and _stationary_total(judged, hold, stage.model.config):
+            judged = replace(judged, rejected_by=None)
         if judged.passes:
             confident.append(delay)
             theta = judged.fit.theta
             convention += "; the dead time beyond that sample is a finding"
-        else:
-            convention += (f"; the {1e3 * (extra - hold):+.3g} ms beyond that sample are no finding (refused by rule "
+        elif extra > hold:
+            convention += (f"; the {1e3 * (extra - hold):.3g} ms beyond that sample are no finding (refused by rule "
                            f"'{judged.rejected_by}')")
+        else:
+            convention += f" (the dead time falls {1e3 * (hold - extra):.3g} ms short of it, within the rule's margin)"
     extended = _extended_rig(stage.rig, theta0, theta, confident, stage.model)
     saved = rig_from_dict(tomllib.loads(rig_to_toml(extended)), source=first.rig.source)
     final = read(saved)
-    tentative_findings = [replace(f, parameters=_parameters(f.effect, theta0, current, model),
+    tentative_findings = [replace(f, parameters=_parameters(f.effect, theta0, current, model,
+                                                            tuple(source.name for source in first.sources)),
                                   evidence={**f.evidence, "why_not_saved": notes.get(f.effect, "")})
                           for f in findings if f not in confident and (f is not delay or convention is None)]
     return FinalModel(saved, final, _chain(first, final, confident), tentative_findings, convention,
                       _final_structure(final, refused, tentative_findings))
 
 
+def _stationary_total(judged: Candidate, hold: float, config: AnalysisConfig) -> bool:
+    """Rule 'stationary' for the dead time beyond the time convention's sample, judged on the whole dead time it
+    belongs to (that sample and the rest): a drift of a small remainder is no drift of the dead time."""
+    fitted, held_out = judged.fit.theta["delay"], (judged.held_out_parameters or {}).get("delay")
+    return held_out is not None and abs(held_out - fitted) <= config.stability_tolerance * (fitted + hold)
+
+
 def _chain(first: Stage, final: Stage, confident: list[Finding]) -> list[Finding]:
-    """The confident findings with their saved values and, in the order accepted, the held-out RMSE of the final
+    """The confident findings with their saved values (the saved rig's; a free one is re-fitted again by every
+    analysis of it) and, in the order accepted, the held-out RMSE of the final
     model with the findings up to each: from the rig's (the findings' parameters at the rig's values, the free ones
     as the baseline re-fitted them) to the saved rig's, the last finding's figure."""
     theta, rig_values = dict(final.theta), first.model.theta0
@@ -618,7 +647,8 @@ def _chain(first: Stage, final: Stage, confident: list[Finding]) -> list[Finding
         score = held_out_score(final.model, theta)
         channel = f.evidence["channel"] if f.evidence["channel"] in score.rmse else "effort"
         before, after = previous.rmse[channel], score.rmse[channel]
-        parameters = _parameters(f.effect, rig_values, final.theta, first.model)
+        parameters = _parameters(f.effect, rig_values, final.model.theta0, final.model,
+                                 tuple(source.name for source in final.sources))
         windows = (f.evidence.get(LOW_SPEED) or {}).get("fit") or {}
         if windows and not windows["resolved"]:  # the log bounds it from one side only: stated
             parameters["stribeck_velocity"].update(resolved=False, bound=windows["bound"])
@@ -674,13 +704,21 @@ def _kind(effect: str, theta0: dict[str, float]) -> str:
     return "re-fit" if EFFECTS[effect].present(theta0) else "effect"
 
 
-def _parameters(effect: str, theta0: dict[str, float], theta: dict[str, float], model: Surrogate) -> dict[str, dict]:
-    """Each parameter's value, unit, fit range and (for a re-fit) the rig's value."""
-    out = {}
+def _parameters(effect: str, theta0: dict[str, float], theta: dict[str, float], model: Surrogate,
+                names: tuple[str, ...] = ()) -> dict[str, dict]:
+    """Each parameter's value (of ``theta``), unit, fit range there and (for a re-fit) the rig's value (of
+    ``theta0``). The records' own zeros (``record_offsets``) are given per record (``names``), without a range:
+    they are profiled, not fitted within one."""
     spec = EFFECTS[effect]
+    joint = model.rig.joint
+    if effect == "record_offsets":
+        zeros = model.record_offsets({**theta, "record_offsets": 1.0}).get("effort", [])
+        return {name: {"value": zero, "unit": channel_unit("effort", joint)}
+                for name, zero in zip(names, zeros, strict=False)}
+    out = {}
     for p in spec.params:
-        low, high = spec.bounds(p.key, model.scale, theta0)
-        entry: dict[str, Any] = {"value": theta[p.key], "unit": p.unit(model.rig.joint), "bounds": [low, high]}
+        low, high = spec.bounds(p.key, model.scale, theta)
+        entry: dict[str, Any] = {"value": theta[p.key], "unit": p.unit(joint), "bounds": [low, high]}
         if spec.present(theta0):
             entry["baseline"] = theta0[p.key]
         out[p.key] = entry

@@ -810,14 +810,15 @@ def _log_errors(first: Stage, final: FinalModel, current: dict[str, float]) -> l
     saved rig, read as an analysis of it begins) and, beside it, of the search's model with the tentative effects."""
     baseline, saved = _errors(first, first.theta), _errors(final.stage, final.stage.theta)
     tentative = _errors(first, current) if final.tentative else None
+    own_zero = bool(final.stage.model.record_offsets(final.stage.theta))
+    whole = [fraction in (0.0, 1.0) for _, _, fraction in first.segments] or [False]  # one log: split
     out = []
-    for i, (source, (_, _, fraction)) in enumerate(zip(first.sources, first.segments or [(0, 0, 0.5)],
-                                                       strict=True)):
+    for i, source in enumerate(first.sources):
         errors = {"baseline": baseline[i], "final": saved[i]}
         if tentative is not None:
             errors["with_tentative"] = tentative[i]
-        out.append({"log": source.name, "role": source.role,
-                    "scored": "whole" if fraction in (0.0, 1.0) else "held-out part", "relative_effort_error": errors})
+        out.append({"log": source.name, "role": source.role, "scored": "whole" if whole[i] else "held-out part",
+                    "own_zero": own_zero, "relative_effort_error": errors})
     return out
 
 
@@ -846,8 +847,8 @@ def _record_offsets(stage: Stage, theta: dict[str, float]) -> list[dict[str, Any
 
 
 def _on_grid(stage: Stage, data: Prepared) -> dict[str, np.ndarray]:
-    """The residual channels of the stage's final parameters at the grid times of ``data`` (the nearest grid
-    sample: the saved rig's stage may read the logs one sample apart, in another time convention)."""
+    """The residual channels of the stage's final parameters at the grid times of ``data`` (its first grid sample
+    at or after each: the saved rig's stage may read the logs one sample apart, in another time convention)."""
     residuals = stage.model.residuals(stage.theta)
     if len(stage.data.t) == len(data.t) and np.array_equal(stage.data.t, data.t):
         return residuals

@@ -19,7 +19,8 @@ MAX_LAG_S = 0.5  # autocorrelation figure: lags up to this [s]
 
 def _value(entry: dict) -> str:
     """'value unit (rig ..., fit range [low, high])'."""
-    text = f"{entry['value']:.5g} {entry['unit']}".rstrip()
+    unit = "" if entry["unit"] == "1" else entry["unit"]  # dimensionless
+    text = f"{entry['value']:.5g} {unit}".rstrip()
     notes = []
     if "baseline" in entry:
         notes.append(f"rig {entry['baseline']:.5g}")
@@ -109,7 +110,8 @@ def format_result(result: DiscrepancyResult) -> str:
     if result.rejected:
         lines.append("Refused candidates with a held-out gain of 10 % or more (and the rule that refused them):")
         for r in result.rejected:
-            params = ", ".join(f"{k} = {v['value']:.4g} {v['unit']}".rstrip() for k, v in r["parameters"].items())
+            params = ", ".join(f"{k} = {_value({'value': v['value'], 'unit': v['unit']})}"
+                               for k, v in r["parameters"].items())
             note = f"; {r['note']}" if r["note"] else ""
             sides = ", ".join(f"{k} ({side})" for k, side in r["at_bound"].items())
             bound = f"; at bound: {sides}" if sides else ""
@@ -145,9 +147,11 @@ def format_result(result: DiscrepancyResult) -> str:
         e = entry["relative_effort_error"]
         tentative = (f" (with the tentative effects as well: {e['with_tentative']:.4f})"
                      if "with_tentative" in e else "")
-        lines.append(f"  {entry['log']} ({entry['role']}, {entry['scored']}): baseline {e['baseline']:.4f}, "
+        zero = "; its own zero fitted on it" if entry.get("own_zero") and entry["role"] == "validation" else ""
+        lines.append(f"  {entry['log']} ({entry['role']}, {entry['scored']}{zero}): baseline {e['baseline']:.4f}, "
                      f"final model {e['final']:.4f}{tentative}")
-    lines.append("The logs cannot reveal:")
+    if b["not_identifiable"]:
+        lines.append("The logs cannot reveal:")
     for name, why in b["not_identifiable"].items():
         effect = EFFECTS[name]
         fine = ", with a fine motor encoder" if effect.needs_fine_motor_encoder else ""

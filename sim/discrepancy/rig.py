@@ -344,7 +344,9 @@ def _rigid(data: dict[str, Any], source: str) -> Rig:
         raise RigError(f"friction.breakaway = {values['breakaway']} must not be below friction.coulomb = "
                        f"{values['coulomb']} (valid range [coulomb, 1e4])")
     if values["breakaway"] > values["coulomb"] and values.get("stribeck_velocity", 0.0) <= 0.0:
-        raise RigError("friction.stribeck_velocity is required when breakaway > coulomb: valid range (0, 1e3]")
+        stated = (f" = {values['stribeck_velocity']!r}" if "stribeck_velocity" in values else " is missing")
+        raise RigError(f"friction.stribeck_velocity{stated}: a breakaway above the Coulomb level needs one, valid "
+                       f"range (0, 1e3]")
     values.setdefault("stribeck_velocity", 1.0)  # irrelevant while breakaway == coulomb
     return Rig("rigid-joint", joint, rigid=values, source=source)
 
@@ -444,7 +446,8 @@ def rig_to_toml(rig: Rig, header: str = "") -> str:
     else:
         lines.append("\n[friction]")
         for key, (theta_key, unit_h, unit_s, *_) in _RIGID_FRICTION.items():
-            if theta_key in rig.rigid:
+            no_drop = theta_key == "stribeck_velocity" and rig.rigid["breakaway"] <= rig.rigid["coulomb"]
+            if theta_key in rig.rigid and not no_drop:  # a Stribeck velocity without a drop is no value of the rig
                 lines.append(f"{key} = {_toml_value(rig.rigid[theta_key])}  # "
                              f"{unit_s if rig.joint == 'slide' else unit_h}")
     for effect in rig.effects:

@@ -345,7 +345,8 @@ def fit_candidate(model: Surrogate, effect: str, theta: dict[str, float], accept
     z, share = event_test(before, after, block)
     change = effort_change(before, after)
     notes = {"bound": "at the " + "; ".join(f"{side} bound of {k}'s range [{outcome.bounds[k][0]:.4g}, "
-                                            f"{outcome.bounds[k][1]:.4g}]" for k, side in at_bound.items())}
+                                            f"{outcome.bounds[k][1]:.4g}]" for k, side in at_bound.items())
+             + ("" if spec.explains_at_bound else ": there it only scales the whole balance, no explanation")}
     simpler = spec.simpler(model, outcome.theta)
     if simpler is not None:
         name, why = simpler

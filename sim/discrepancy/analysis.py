@@ -42,7 +42,7 @@ from sim.discrepancy.effects import EFFECTS, rig_kind
 from sim.discrepancy.fit import FitOutcome, fit_keys
 from sim.discrepancy.model import NUISANCE_KEYS, Surrogate, channel_unit
 from sim.discrepancy.null import ModelLogUnavailable, model_log
-from sim.discrepancy.rig import AddedEffect, Rig, check_rig_matches_log, rig_from_dict, rig_to_toml
+from sim.discrepancy.rig import AddedEffect, Rig, check_rig_matches_log, rig_field, rig_from_dict, rig_to_toml
 from sim.discrepancy.selection import (
     Candidate,
     ChannelScore,
@@ -829,6 +829,9 @@ def _free_parameters(stage: Stage, rig: Rig) -> dict[str, dict[str, Any]]:
     for k in rig.free_keys:
         entry: dict[str, Any] = {"value": stage.theta[k], "rig": stage.model.theta0[k], "unit": _unit(k, rig.joint),
                                  "bounds": list(stage.refit.bounds[k])}
+        field_value = rig_field(rig, k, stage.theta[k])
+        if field_value is not None and field_value[1] != stage.theta[k]:  # another quantity in the rig file
+            entry["saved_as"] = {"field": field_value[0], "value": field_value[1]}
         if k in stage.refit.at_bound:
             entry["at_bound"] = stage.refit.at_bound[k]
         out[k] = entry

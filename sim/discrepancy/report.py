@@ -37,6 +37,8 @@ def _free(entry: dict) -> str:
     low, high = entry["bounds"]
     text = (f"{entry['value']:.6g} {entry['unit']} (rig {entry['rig']:.6g}; range [{low:.4g}, {high:.4g}] "
             f"{entry['unit']})")
+    if "saved_as" in entry:
+        text += f"; in the rig file {entry['saved_as']['field']} = {entry['saved_as']['value']:.6g}"
     if "at_bound" in entry:
         text += (f"; at the {entry['at_bound']} bound: the rig's value is far off, or another effect pulls it "
                  f"there")

@@ -389,19 +389,34 @@ def check_rig_matches_log(rig: Rig, log: RunLog) -> None:
 # --------------------------------------------------------------------------------------------- saving
 
 
+def rig_field(rig: Rig, key: str, value: float) -> tuple[str, float] | None:
+    """The rig-file field that states theta entry ``key`` and its value there for ``value`` (SI), or None if the
+    rig states no such field. The testbed's inertia in theta is the output-referred N²·J_rotor + J_out; its file
+    states the rotor's."""
+    if rig.model != "testbed":
+        name = next((k for k, spec in {**_RIGID_FIELDS, **_RIGID_FRICTION}.items()
+                     if spec[0] == key and _rigid_name_applies(k, rig.joint)), None)
+        if name is None:
+            return None
+        return (name if name in _RIGID_FIELDS else f"friction.{name}"), value
+    path = {v: k for k, v in TESTBED_FREE.items()}.get(key)
+    if path is None:
+        return None
+    if key == "inertia":
+        assert rig.params is not None
+        value = (value - derive(rig.params).output_inertia_kgm2) / rig.params.motor.gear_ratio ** 2
+    return path, value
+
+
 def _testbed_with_theta(rig: Rig, theta: dict[str, float]) -> Rig:
     assert rig.params is not None
     overrides = {g: dict(v) for g, v in rig.overrides.items()}
-    d = derive(rig.params)
-    inverse = {v: k for k, v in TESTBED_FREE.items()}
     for key, value in theta.items():
-        path = inverse.get(key)
-        if path is None:
+        field_value = rig_field(rig, key, value)
+        if field_value is None:
             continue
-        if key == "inertia":  # theta holds the output-referred motor-side inertia N²·J_rotor + J_out
-            value = (value - d.output_inertia_kgm2) / rig.params.motor.gear_ratio ** 2
-        group, name = path.split(".")
-        overrides.setdefault(group, {})[name] = float(value)
+        group, name = field_value[0].split(".")
+        overrides.setdefault(group, {})[name] = float(field_value[1])
     try:
         params = from_dict(overrides)
     except ParameterError as exc:

@@ -560,6 +560,15 @@ def summarise(rows: list[dict]) -> dict:
     }
 
 
+def write_summary(rows: list[dict], summary: dict, out: Path) -> None:
+    """Print ``summary`` and write it with every row to ``out/summary.json``."""
+    print("\nsummary:")
+    for key, value in summary.items():
+        print(f"  {key}: {value}")
+    (out / "summary.json").write_text(json.dumps({"summary": summary, "cases": rows}, indent=1, default=float),
+                                      encoding="utf-8")
+
+
 # ------------------------------------------------------------------------------------------------------- CLI
 
 
@@ -602,12 +611,7 @@ def main(argv: list[str] | None = None) -> int:
                       flush=True)
                 rows.append(row)
             print_table(rows)
-            summary = summarise(rows)
-            print("\nsummary:")
-            for key, value in summary.items():
-                print(f"  {key}: {value}")
-            (args.out / "summary.json").write_text(json.dumps({"summary": summary, "cases": rows}, indent=1,
-                                                              default=float), encoding="utf-8")
+            write_summary(rows, summarise(rows), args.out)
     finally:
         if pool:
             pool.shutdown()

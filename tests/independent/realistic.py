@@ -69,7 +69,7 @@ from pathlib import Path
 import numpy as np
 from scipy.signal import butter, sosfiltfilt
 
-from tests.independent.battery import _current_library, _fmt, judge
+from tests.independent.battery import _current_library, _fmt, judge, write_summary
 from tests.independent.rigsim import (
     PID,
     EnergyPump,
@@ -830,11 +830,7 @@ def main(argv: list[str] | None = None) -> int:
             summary = summarise(rows)
             summary["generation_wall_s"] = generated
             summary["wall_s"] = time.perf_counter() - started
-            print("\nsummary:")
-            for key, value in summary.items():
-                print(f"  {key}: {value}")
-            (args.out / "summary.json").write_text(json.dumps({"summary": summary, "cases": rows}, indent=1,
-                                                              default=float), encoding="utf-8")
+            write_summary(rows, summary, args.out)
     finally:
         if pool:
             pool.shutdown()

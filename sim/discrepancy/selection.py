@@ -191,8 +191,7 @@ def with_low_speed(model: Surrogate, theta: dict[str, float], score: ChannelScor
     unchanged where it has none or already has the channel."""
     if LOW_SPEED in score.rmse:
         return score
-    floor = EFFECTS["stribeck_friction"].bounds("stribeck_velocity", model.scale, theta)[0]
-    error = position_error(model, theta, floor, part="held")
+    error = position_error(model, theta, part="held")
     if error is None:
         return score
     values, windows = error

@@ -84,6 +84,7 @@ if TYPE_CHECKING:
 
 MAX_WINDOWS = 40  # windows per fit, spread over the log's events
 MIN_WINDOWS = 4  # a log shows its low speeds in windows with at least this many in each of its fit and held-out parts
+VELOCITY_FLOOR_OF_TOP = 1e-3  # the least velocity step of the start-velocity corrections: x the log's top speed
 SUBSTEPS = 2  # integration steps per sample of the log
 REST_LEAD_S = 0.02  # a window at rest starts this long before the position first moves [s]
 REST_BEFORE_S = 0.02  # ... and the position has been still for this long before the start [s]
@@ -672,14 +673,11 @@ def window_counts(model: Surrogate, theta: dict[str, float]) -> dict[str, int]:
 LOW_SPEED = "low_speed"  # the residual channel of the windows' position error [rad | m]
 
 
-def position_error(model: Surrogate, theta: dict[str, float], velocity_floor: float, part: str = "held"
-                   ) -> tuple[np.ndarray, int] | None:
+def position_error(model: Surrogate, theta: dict[str, float], part: str = "held") -> tuple[np.ndarray, int] | None:
     """The windows' position error at ``theta`` on the analysis grid: for each grid sample, the RMS of the
     measured minus the simulated position over the window samples that fall on it (the sliding windows' start
     velocities corrected as in the fit), NaN where no window sample does [rad | m]; and the number of windows of
-    ``part``. None where the part has fewer than MIN_WINDOWS. ``velocity_floor`` [rad/s | m/s]: the Stribeck
-    velocity of a model without a Stribeck drop (any: the drop is nil), and the floor of the start-velocity
-    corrections' steps.
+    ``part``. None where the part has fewer than MIN_WINDOWS.
 
     The static level is the surrogate's (:meth:`Surrogate.static_level`: a rig with one dry level breaks away at
     its Coulomb level); the channel lets an effect's evidence at the low-speed events, which the effort balance
@@ -691,6 +689,8 @@ def position_error(model: Surrogate, theta: dict[str, float], velocity_floor: fl
     if windows.count < MIN_WINDOWS:
         return None
     scale = theta["coulomb"] if theta["coulomb"] > 0 else BREAKAWAY_SCALE_OF_EFFORT * model.scale.effort
+    velocity_floor = VELOCITY_FLOOR_OF_TOP * model.scale.velocity  # the corrections' least step; a model without a
+    # Stribeck drop takes it as its (irrelevant) Stribeck velocity
     problem = _Problem(windows, theta, scale, velocity_floor, True)
     static = model.static_level(theta)
     velocity = theta["stribeck_velocity"] if static > theta["coulomb"] else velocity_floor

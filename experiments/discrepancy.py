@@ -2,9 +2,11 @@
 
     python -m experiments.discrepancy LOG [LOG ...] --rig RIG.toml [--validate LOG ...] [--json OUT] [--plot DIR]
                                       [--save-rig OUT.toml] [--workers N | --ray [ADDRESS]] [--no-replay] [--unwrap]
-                                      [--max-jitter FRACTION] [--rerun PATH.rrd] [--rerun-spawn]
+                                      [--max-jitter FRACTION] [--log KEY=VALUE ...] [--rerun PATH.rrd]
+                                      [--rerun-spawn]
 
-LOG is a run log (CSV, Parquet or .mat, docs/run_log_format.md); several logs of one rig are fitted together.
+LOG is a run log (CSV, Parquet, .mat or JSON, docs/run_log_format.md), or a drive's own record read through the
+rig's [log] table or --log KEY=VALUE options (docs/own_logs.md); several logs of one rig are fitted together.
 RIG.toml describes what produced them (docs/discrepancy.md); the joint (hinge or slide) comes from the rig.
 --validate names validation logs: the estimation logs are then fitted whole and every candidate and the final
 model are scored on the validation logs. No input file is modified. Progress goes to stderr.
@@ -20,6 +22,7 @@ signal (``replay/measured``, ``replay/baseline``, ``replay/extended``, in the re
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import sys
 from pathlib import Path
 
@@ -39,6 +42,7 @@ from sim.discrepancy.report import format_result, plot_result
 from sim.discrepancy.rig import Rig, RigError, load_rig, save_rig
 from sim.discrepancy.signals import AnalysisConfig
 from sim.logio import LogError, read_log
+from sim.logmap import LogMapError, log_map_from_dict, mapped_names, read_mapped, with_options
 from sim.runlog import RunLog
 
 # log column -> series name under /<run>/position
@@ -110,6 +114,10 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--max-jitter", type=jitter_fraction, default=0.05, metavar="FRACTION",
                         help="largest accepted relative deviation of a sampling step from the median step "
                              "(default 0.05; servo logs with irregular sampling may need more)")
+    parser.add_argument("--log", dest="log_options", action="append", default=[], metavar="KEY=VALUE",
+                        help="how the records map onto the run log, as in the rig's [log] table and laid over it: "
+                             "columns.tau_cmd='vir * gtau', units.q=deg, resample='5 ms', enable=torque_enable, "
+                             "twos_complement.pwm=16, records=samples (docs/own_logs.md)")
     add_output_args(parser, "write the result as JSON")
     parser.add_argument("--save-rig", type=Path, metavar="TOML", help="write the extended rig (must not exist)")
     add_executor_args(parser, "the candidate fits", workers=2)
@@ -125,27 +133,42 @@ def main(argv: list[str] | None = None) -> None:
         parser.error(str(exc))
     except OSError as exc:  # a directory, no permission
         parser.error(f"rig file {args.rig} cannot be read: {exc.strerror or exc}")
-    logs = []
-    for path in paths:
+    if args.log_options:
         try:
-            logs.append(read_log(path, joint=rig.joint, max_jitter=args.max_jitter))
+            table = with_options(rig.log_map.to_dict() if rig.log_map else {}, args.log_options)
+            rig = dataclasses.replace(rig, log_map=log_map_from_dict(table))
+        except LogMapError as exc:
+            parser.error(f"--log: {exc}")
+    logs, names, roles, sources = [], [], [], []
+    for i, (path, name) in enumerate(zip(paths, _names(paths), strict=True)):
+        try:
+            if rig.log_map is None:
+                found, found_names = [read_log(path, joint=rig.joint, max_jitter=args.max_jitter)], [name]
+            else:
+                record = read_mapped(path, rig.log_map, joint=rig.joint, max_jitter=args.max_jitter)
+                found, found_names = list(record.logs), mapped_names(name, len(record.logs))
+                print("\n".join(f"{name}: {note}" for note in record.notes))
         except (LogError, FileNotFoundError) as exc:
             parser.error(f"{path}: {exc}")
         except OSError as exc:
             parser.error(f"{path} cannot be read: {exc.strerror or exc}")
-    n = len(args.log)
+        logs += found
+        names += found_names
+        roles += ["estimation" if i < len(args.log) else "validation"] * len(found)
+        sources += [path] * len(found)
+    n = roles.count("estimation")
     config = AnalysisConfig(workers=args.workers, ray=args.ray)
     try:
         result = analyse(logs[0], rig, config, progress=True,
                          replay=not args.no_replay, also=tuple(logs[1:n]), validation=tuple(logs[n:]),
-                         names=_names(paths), unwrap=args.unwrap)
+                         names=tuple(names), unwrap=args.unwrap)
     except InputError as exc:
         parser.error(f"{args.log[0] if n == 1 and not args.validate else 'the logs'}: {exc}")
     except (RigError, ValueError) as exc:
         parser.error(str(exc))
     print(format_result(result))
     write_outputs(args, result.to_dict(), lambda directory: plot_result(result, directory),
-                  run=_run_entries(args, paths, logs, config))
+                  run=_run_entries(args, sources, names, roles, logs, config))
     if args.save_rig:
         header = (f"Extended rig written by experiments.discrepancy from {', '.join(p.name for p in paths)} and "
                   f"{args.rig.name}.\n"
@@ -158,14 +181,19 @@ def main(argv: list[str] | None = None) -> None:
     sys.stdout.flush()
 
 
-def _run_entries(args: argparse.Namespace, paths: list[Path], logs: list, config: AnalysisConfig) -> dict:
-    """What was run, for the JSON's "run" section: each log (path, role, samples, duration [s]), the rig file,
-    where the candidates were fitted, whether the replay ran, the seed of the model's own log, the versions."""
-    n = len(args.log)
-    return {"seed": config.model_log_seed, "rig": str(args.rig),
-            "logs": [{"path": str(path), "role": "estimation" if i < n else "validation", "samples": len(log),
-                      "duration_s": float(log["time"][-1] - log["time"][0])}
-                     for i, (path, log) in enumerate(zip(paths, logs, strict=True))],
+def _run_entries(args: argparse.Namespace, sources: list[Path], names: list[str], roles: list[str], logs: list,
+                 config: AnalysisConfig) -> dict:
+    """What was run, for the JSON's "run" section: each log (path, role, samples, duration [s]; for a mapped record
+    its name in the report and how it was mapped), the rig file, where the candidates were fitted, whether the
+    replay ran, the seed of the model's own log, the versions."""
+    entries = []
+    for path, name, role, log in zip(sources, names, roles, logs, strict=True):
+        entry = {"path": str(path), "role": role, "samples": len(log),
+                 "duration_s": float(log["time"][-1] - log["time"][0])}
+        if "mapping" in log.meta:
+            entry.update(name=name, mapping=log.meta["mapping"]["notes"])
+        entries.append(entry)
+    return {"seed": config.model_log_seed, "rig": str(args.rig), "logs": entries,
             "workers": config.workers, "ray": config.ray, "replay": not args.no_replay,
             "versions": software_versions()}
 

@@ -56,7 +56,7 @@ from sim.runlog import STANDARD_UNITS, RunLog
 JOINTS = ("hinge", "slide")
 
 # A slide (prismatic) joint's effort, position and velocity are linear; every other column keeps its unit.
-SLIDE_UNITS: dict[str, str] = {**STANDARD_UNITS, "tau_cmd": "N", "q": "m", "qd": "m/s"}
+SLIDE_UNITS: dict[str, str] = {**STANDARD_UNITS, "tau_cmd": "N", "q": "m", "qd": "m/s", "q_ref": "m"}
 
 REQUIRED_COLUMNS = ("time", "tau_cmd")
 OUTPUT_COLUMNS = ("q", "tau_sensor", "force_loadcell")  # a log needs at least one measure of the output side
@@ -531,6 +531,14 @@ def _parquet_column(name: str, column: Any) -> Any:
 
 
 def _read_mat(path: Path) -> _Raw:
+    variables, declared, meta = _mat_variables(path)
+    return _Raw({name: _mat_vector(name, value) for name, value in variables.items()}, declared, meta,
+                "the 'units' struct")
+
+
+def _mat_variables(path: Path) -> tuple[dict[str, Any], dict[str, str], dict[str, Any]]:
+    """A .mat file's variables as loadmat(simplify_cells=True) gives them (but 'units' and 'meta'), the units its
+    'units' variable declares, and its 'meta'."""
     with path.open("rb") as fh:
         head = fh.read(_HDF5_USERBLOCK + len(_HDF5_SIGNATURE))
         if _HDF5_SIGNATURE in (head[:len(_HDF5_SIGNATURE)], head[_HDF5_USERBLOCK:]):
@@ -546,11 +554,7 @@ def _read_mat(path: Path) -> _Raw:
     declared = _mat_units(units)
     if meta_text is not None and not isinstance(meta_text, str):
         raise LogError("variable 'meta' must be a char array of JSON text", column="meta")
-    meta = _json_from(meta_text, "variable 'meta'")
-    columns: dict[str, Any] = {}
-    for name, value in variables.items():
-        columns[name] = _mat_vector(name, value)
-    return _Raw(columns, declared, meta, "the 'units' struct")
+    return variables, declared, _json_from(meta_text, "variable 'meta'")
 
 
 def _loadmat(content: bytes) -> dict[str, Any]:
@@ -656,7 +660,170 @@ def _mat_vector(name: str, value: Any) -> Any:
     return list(array)  # logical, cell or char cells: _to_float names the first bad one
 
 
-_READERS: dict[str, Callable[[Path], _Raw]] = {".csv": _read_csv, ".parquet": _read_parquet, ".mat": _read_mat}
+def _read_json(path: Path) -> _Raw:
+    found = json_records(path)
+    header = dict(found.header)
+    units_key = "member 'units'"
+    declared = _unit_map(_json_object(header.pop("units", {}), units_key), units_key)
+    return _Raw(found.fields, declared, header, "the member 'units' beside the records")
+
+
+_READERS: dict[str, Callable[[Path], _Raw]] = {".csv": _read_csv, ".parquet": _read_parquet, ".mat": _read_mat,
+                                               ".json": _read_json}
+
+
+# ------------------------------------------------------------------------------------------------ JSON records
+
+
+@dataclass(frozen=True)
+class JsonRecords:
+    """The records of a JSON log.
+
+    Attributes
+    ----------
+    fields : dict of str to list
+        Field name to its value in every record (None where a record lacks it); fields of nested objects are
+        named with dots (``{"pos": {"x": 1}}`` gives ``pos.x``). For a file of columns (an object of equal-length
+        lists of numbers), the columns.
+    header : dict
+        The file's other members, as they are (a list of records has none).
+    key : str or None
+        The member that holds the records; None when the file is the list itself.
+    """
+
+    fields: dict[str, list[Any]]
+    header: dict[str, Any]
+    key: str | None
+
+
+def json_records(path: Path, key: str | None = None) -> JsonRecords:
+    """The records of the JSON file ``path``: a list of objects, an object with such a list as one member
+    (``key`` names it where there are several), or an object of columns (equal-length lists of numbers)."""
+    try:
+        text = path.read_text(encoding=_text_encoding(path))
+    except LogError as err:
+        raise err.located(path) from None
+    try:
+        top = json.loads(text)
+    except (ValueError, RecursionError) as err:
+        raise LogError(f"{path.name} is not valid JSON ({type(err).__name__}: {err})", path=path) from None
+    if isinstance(top, list):
+        if key is not None:
+            raise LogError(f"records = {key!r}, but the file is a list of records, not an object with members")
+        return JsonRecords(_record_fields(top, "the file"), {}, None)
+    if not isinstance(top, dict):
+        raise LogError(f"the file holds a JSON {type(top).__name__}; a log is a list of records (objects), or an "
+                       f"object with such a list as a member")
+    lists = [name for name, value in top.items() if _is_record_list(value)]
+    if key is not None:
+        if not _is_record_list(top.get(key)):
+            raise LogError(f"records = {key!r}: the file has no list of records of that name; "
+                           + _members_text(top, lists))
+        lists = [key]
+    if len(lists) == 1:
+        name = lists[0]
+        return JsonRecords(_record_fields(top[name], f"member {name!r}"),
+                           {k: v for k, v in top.items() if k != name}, name)
+    if len(lists) > 1:
+        raise LogError(f"the file has {len(lists)} lists of records ({', '.join(map(repr, lists))}); name the one "
+                       f"to read (records = \"...\" in the rig's [log] table)")
+    columns = {name: value for name, value in top.items() if isinstance(value, list) and value
+               and not any(isinstance(v, (dict, list)) for v in value)}
+    if not columns:
+        raise LogError("the file has no list of records (objects) and no columns (lists of numbers); "
+                       + _members_text(top, []))
+    return JsonRecords(columns, {k: v for k, v in top.items() if k not in columns}, None)
+
+
+def _is_record_list(value: Any) -> bool:
+    return isinstance(value, list) and bool(value) and all(isinstance(v, dict) for v in value)
+
+
+def _members_text(top: dict[str, Any], lists: list[str]) -> str:
+    kinds = {name: ("a list of records" if name in lists else f"a {type(value).__name__}")
+             for name, value in list(top.items())[:20]}
+    return "its members: " + (", ".join(f"{k!r} ({v})" for k, v in kinds.items()) or "none")
+
+
+def _record_fields(records: list[Any], where: str) -> dict[str, list[Any]]:
+    """Field -> values of a list of records (objects; nested objects flattened with dots)."""
+    rows = []
+    for i, record in enumerate(records):
+        if not isinstance(record, dict):
+            raise LogError(f"{where}: record {i + 1} (row {row_of(i)}) is a JSON {type(record).__name__}; every "
+                           f"record must be an object", row=row_of(i))
+        rows.append(flatten(record))
+    names = list(dict.fromkeys(name for row in rows for name in row))
+    return {name: [row.get(name) for row in rows] for name in names}
+
+
+def flatten(value: dict[str, Any], prefix: str = "") -> dict[str, Any]:
+    """Nested objects (dicts) as one level, their members named ``outer.inner``."""
+    out: dict[str, Any] = {}
+    for name, member in value.items():
+        if isinstance(member, dict):
+            out.update(flatten(member, f"{prefix}{name}."))
+        else:
+            out[f"{prefix}{name}"] = member
+    return out
+
+
+def _json_object(value: Any, where: str) -> dict[str, Any]:
+    if not isinstance(value, dict):
+        raise LogError(f"{where} must be a JSON object")
+    return value
+
+
+# ----------------------------------------------------------------------------------- a record's own variables
+
+
+@dataclass(frozen=True)
+class Variables:
+    """A record's variables as its file holds them, before they are mapped onto a run log.
+
+    Attributes
+    ----------
+    values : dict of str to object
+        Variable name to its value: a float64 array, a number, or cells as the file has them (text, mixed,
+        None). A struct's or a JSON object's members are named with dots (``header.mass``).
+    declared : dict of str to str
+        The unit the file itself gives a variable (CSV sidecar, Parquet metadata, .mat 'units', JSON 'units').
+    meta : dict
+        The file's meta (Parquet and .mat 'meta').
+    """
+
+    values: dict[str, Any]
+    declared: dict[str, str]
+    meta: dict[str, Any]
+
+
+def read_variables(path: str | Path, *, records: str | None = None) -> Variables:
+    """The variables of a record file of any readable format, unvalidated: the columns of a CSV or Parquet file,
+    the variables of a .mat (scalars too), the fields of a JSON log's records and the members beside them.
+
+    ``records`` names the member of a JSON object that holds the records, where it has several. The file is only
+    read. Raises :class:`LogError` (naming the file) where the file cannot be read.
+    """
+    path = Path(path)
+    suffix = _suffix(path)
+    if suffix not in _READERS:
+        raise LogError(f"cannot read {path.name!r}: unknown suffix {path.suffix!r}; use one of "
+                       f"{', '.join(_READERS)}", path=path)
+    try:
+        if suffix == ".mat":
+            values, declared, meta = _mat_variables(path)
+            return Variables(flatten(values), declared, meta)
+        if suffix == ".json":
+            found = json_records(path, records)
+            header = dict(found.header)
+            declared = _unit_map(_json_object(header.pop("units", {}), "member 'units'"), "member 'units'")
+            return Variables({**flatten(header), **found.fields}, declared, {})
+        if records is not None:
+            raise LogError(f"records = {records!r} names a member of a JSON log; {path.name} is not JSON")
+        raw = _READERS[suffix](path)
+        return Variables(raw.columns, raw.declared, raw.meta)
+    except LogError as err:
+        raise err.located(path) from None
 
 
 def _json_from(text: bytes | str | None, where: str) -> dict[str, Any]:

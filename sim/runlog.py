@@ -20,6 +20,7 @@ STANDARD_UNITS: dict[str, str] = {
     "tau_cmd": "N·m",
     "q": "rad",
     "qd": "rad/s",
+    "q_ref": "rad",
     "q_motor": "rad",
     "tau_sensor": "N·m",
     "force_loadcell": "N",

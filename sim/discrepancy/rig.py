@@ -42,6 +42,7 @@ from __future__ import annotations
 import dataclasses
 import difflib
 import math
+import re
 import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -51,6 +52,7 @@ from models.gim8108_testbed.build import check_time_constants
 from models.gim8108_testbed.derived import FIXTURES, derive
 from sim.discrepancy.effects import EFFECTS, rig_kind
 from sim.discrepancy.effects.transport_delay import MAX_DELAY_S
+from sim.logmap import LogMap, LogMapError, log_map_from_dict
 from sim.params import ParameterError, TestbedParams, from_dict
 from sim.runlog import TIME_CONVENTIONS, RunLog
 
@@ -131,6 +133,9 @@ class Rig:
         Where the rig came from (file name), for messages.
     time_convention : {'hold_end', 'command'} or None
         How the rig's logs stamp their rows (``docs/run_log_format.md``); None: not stated.
+    log_map : LogMap or None
+        How the rig's own record files become run logs (the ``[log]`` table, ``docs/own_logs.md``); None: they
+        are run logs already.
     """
 
     model: str
@@ -143,6 +148,7 @@ class Rig:
     overrides: dict[str, dict[str, Any]] = field(default_factory=dict)
     source: str = "<rig>"
     time_convention: str | None = None
+    log_map: LogMap | None = None
 
     @property
     def free_keys(self) -> tuple[str, ...]:
@@ -166,6 +172,8 @@ class Rig:
         out: dict[str, Any] = {"model": self.model, "joint": self.joint, "free": list(self.free),
                                "effects": [e.to_dict() for e in self.effects],
                                "time_convention": self.time_convention}
+        if self.log_map is not None:
+            out["log"] = self.log_map.to_dict()
         if self.model == "testbed":
             out.update(fixture=self.fixture, overrides=self.overrides)
         else:
@@ -201,6 +209,11 @@ def rig_from_dict(data: dict[str, Any], source: str = "<rig>") -> Rig:
     if model not in MODELS:
         raise RigError(f"model = {model!r}: valid values are {', '.join(map(repr, MODELS))}")
     effects = _effects(data.pop("effects", []))
+    log_table = data.pop("log", None)
+    try:
+        log_map = None if log_table is None else log_map_from_dict(log_table)
+    except LogMapError as exc:
+        raise RigError(f"[log]: {exc}") from None
     free = data.pop("free", [])
     convention = data.pop("time_convention", None)
     if convention is not None and convention not in TIME_CONVENTIONS:
@@ -222,7 +235,8 @@ def rig_from_dict(data: dict[str, Any], source: str = "<rig>") -> Rig:
         if not EFFECTS[effect.name].applies(rig):
             raise RigError(f"effects: {effect.name!r} does not apply to a {rig_kind(rig)} rig (it applies to: "
                            f"{', '.join(sorted(EFFECTS[effect.name].rigs))})")
-    return dataclasses.replace(rig, free=tuple(free), effects=tuple(effects), time_convention=convention)
+    return dataclasses.replace(rig, free=tuple(free), effects=tuple(effects), time_convention=convention,
+                               log_map=log_map)
 
 
 def _effects(tables: Any) -> list[AddedEffect]:
@@ -283,7 +297,7 @@ def _testbed(data: dict[str, Any], source: str) -> Rig:
                                               n=1)
             hint = f" (did you mean {close[0]!r}?)" if close else ""
             raise RigError(f"unknown key {key!r} for model 'testbed'{hint}; valid keys: model, fixture, "
-                           f"lever_length_m, free, effects, time_convention, and the parameter groups "
+                           f"lever_length_m, free, effects, time_convention, log, and the parameter groups "
                            f"{', '.join(sorted(groups))}")
     if lever is not None:
         stated = overrides.get("lever", {}).get("length_m")
@@ -321,7 +335,7 @@ def _rigid(data: dict[str, Any], source: str) -> Rig:
             close = difflib.get_close_matches(key, valid, n=1)
             hint = (f" ({_HINGE_ONLY[key]})" if key in _HINGE_ONLY and joint == "slide" else
                     f" (did you mean {close[0]!r}?)" if close else "")
-            raise RigError(f"unknown key {key!r} for a rigid {joint} joint{hint}; valid keys: model, joint, "
+            raise RigError(f"unknown key {key!r} for a rigid {joint} joint{hint}; valid keys: model, joint, log, "
                            f"free, effects, friction, time_convention, {', '.join(valid)}")
         theta_key, unit_h, unit_s, low, high = _RIGID_FIELDS[key]
         values[theta_key] = _number(key, value, low, high, unit_s if joint == "slide" else unit_h)
@@ -433,7 +447,13 @@ def _toml_value(value: Any) -> str:
         return '"' + value.replace("\\", "\\\\").replace('"', '\\"') + '"'
     if isinstance(value, (list, tuple)):
         return "[" + ", ".join(_toml_value(v) for v in value) + "]"
+    if isinstance(value, dict):
+        return "{" + ", ".join(f"{_toml_key(k)} = {_toml_value(v)}" for k, v in value.items()) + "}"
     raise TypeError(f"cannot write {value!r} to TOML")
+
+
+def _toml_key(key: str) -> str:
+    return key if re.fullmatch(r"[A-Za-z0-9_-]+", key) else _toml_value(key)
 
 
 def rig_to_toml(rig: Rig, header: str = "") -> str:
@@ -465,6 +485,9 @@ def rig_to_toml(rig: Rig, header: str = "") -> str:
             if theta_key in rig.rigid and not no_drop:  # a Stribeck velocity without a drop is no value of the rig
                 lines.append(f"{key} = {_toml_value(rig.rigid[theta_key])}  # "
                              f"{unit_s if rig.joint == 'slide' else unit_h}")
+    if rig.log_map is not None:
+        lines.append("\n[log]")
+        lines.extend(f"{key} = {_toml_value(value)}" for key, value in rig.log_map.to_dict().items())
     for effect in rig.effects:
         lines.append("\n[[effects]]")
         lines.append(f"name = {_toml_value(effect.name)}")

@@ -44,17 +44,29 @@ def emps_log(name: str) -> SlideRunLog:
     return SlideRunLog(columns, {"time": "s", "tau_cmd": "N", "q": "m"})
 
 
-def test_emps_names_coulomb_then_a_constant_force_and_its_saved_rig_beats_the_published_model(tmp_path):
-    paths = {}
+def run_cli(folder: Path, records: dict[str, Path], rig_text: str) -> tuple[dict, Path]:
+    """One run of the command line on the estimation and validation records; its JSON result and saved rig."""
+    rig = folder / "rig.toml"
+    rig.write_text(rig_text, encoding="utf-8")
+    out, saved = folder / "out.json", folder / "saved.toml"
+    cli.main([str(records["estimation"]), "--rig", str(rig), "--validate", str(records["validation"]), "--json",
+              str(out), "--save-rig", str(saved), "--no-plot", "--no-replay"])
+    return json.loads(out.read_text(encoding="utf-8")), saved
+
+
+@pytest.fixture(scope="module")
+def converted(tmp_path_factory) -> tuple[dict, Path]:
+    """The analysis of the EMPS records converted to run logs (CSV)."""
+    folder = tmp_path_factory.mktemp("converted")
+    records = {}
     for role, name in (("estimation", "DATA_EMPS.mat"), ("validation", "DATA_EMPS_PULSES.mat")):
-        paths[role] = tmp_path / f"{role}.csv"
-        write_log(emps_log(name), paths[role])
-    rig = tmp_path / "rig.toml"
-    rig.write_text(RIG, encoding="utf-8")
-    out, saved = tmp_path / "out.json", tmp_path / "saved.toml"
-    cli.main([str(paths["estimation"]), "--rig", str(rig), "--validate", str(paths["validation"]), "--json", str(out),
-              "--save-rig", str(saved), "--no-plot", "--no-replay"])
-    result = json.loads(out.read_text(encoding="utf-8"))
+        records[role] = folder / f"{role}.csv"
+        write_log(emps_log(name), records[role])
+    return run_cli(folder, records, RIG)
+
+
+def test_emps_names_coulomb_then_a_constant_force_and_its_saved_rig_beats_the_published_model(converted):
+    result, saved = converted
     names = [f["effect"] for f in result["findings"]]
     assert names[0] == "coulomb_friction"
     coulomb = result["findings"][0]["parameters"]["coulomb"]["value"]
@@ -66,3 +78,20 @@ def test_emps_names_coulomb_then_a_constant_force_and_its_saved_rig_beats_the_pu
     assert validation["relative_effort_error"]["final"] <= 0.050 < PUBLISHED["validation_error"]
     carried = load_rig(saved).rigid
     assert carried["coulomb"] == coulomb and carried["constant_effort"] == constant
+
+
+def test_emps_read_straight_from_its_mat_files_gives_the_analysis_of_the_converted_logs(converted, tmp_path):
+    """The rig's [log] table maps the .mat variables (force gtau * vir, a 1 x 1 variable times a column) onto the
+    run log; the analysis is the one of the logs a converter script writes."""
+    mapped_rig = RIG + '\n[log]\ncolumns = {time = "t", tau_cmd = "vir * gtau", q = "qm"}\n'
+    result, saved = run_cli(tmp_path, {"estimation": EMPS / "DATA_EMPS.mat",
+                                       "validation": EMPS / "DATA_EMPS_PULSES.mat"}, mapped_rig)
+    expected = converted[0]
+    assert result["final"]["rig"].pop("log")["columns"]["tau_cmd"] == "vir * gtau"  # the saved rig keeps [log]
+    for key in ("findings", "verdict", "final"):
+        assert result[key] == expected[key], key
+    errors = [[e["relative_effort_error"] for e in r["logs"]] for r in (result, expected)]
+    assert errors[0] == errors[1]
+    assert result["run"]["logs"][0]["mapping"] == ["time [s] = t", "tau_cmd [N] = vir * gtau, gtau = 35.1507",
+                                                   "q [m] = qm"]
+    assert load_rig(saved).log_map == load_rig(tmp_path / "rig.toml").log_map  # a second run reads the same files

@@ -6,6 +6,7 @@ and the baseline rig. Tolerances are stated per effect; the looser ones say why.
 """
 
 import dataclasses
+import tomllib
 
 import pytest
 
@@ -18,7 +19,10 @@ from experiments.synthetic_logs import (
     hidden_effect_log,
     random_baseline_overrides,
 )
-from sim.discrepancy.analysis import analyse
+from sim.discrepancy.analysis import analyse as analyse_log
+from sim.discrepancy.analysis import read_stage
+from sim.discrepancy.rig import rig_from_dict, rig_to_toml
+from sim.discrepancy.signals import AnalysisConfig
 
 SEEDS = (21, 22, 23)
 DURATION_S = 10.0
@@ -81,6 +85,17 @@ RIGID_CASES = [(effect, joint) for effect in RIGID_TOLERANCES for joint in ("hin
                if not (effect == "gravity" and joint == "slide")]
 # the swing reveals every rigid effect but Stribeck friction, which needs the low speeds of point-to-point moves
 RIGID_EXPERIMENT = {"stribeck_friction": "{joint}_moves"}
+
+
+def analyse(log, rig, config=None):
+    """The analysis, with its promise checked on every log of the sweep: its saved rig, written as TOML and read
+    back, reads the log as the analysis's final model (the same held-out RMSE per channel)."""
+    config = config or AnalysisConfig()
+    result = analyse_log(log, rig, config)
+    saved = rig_from_dict(tomllib.loads(rig_to_toml(result.extended_rig)))
+    again = read_stage((log,), ("log 1",), ["estimation"], saved, config).score.rmse
+    assert again == pytest.approx(result.final["rmse_heldout"], rel=1e-9, nan_ok=True)
+    return result
 
 
 def _check(result, truth, effect, tolerances):

@@ -12,8 +12,10 @@ type or a value out of range raises :class:`ParameterError` naming the field, th
 from __future__ import annotations
 
 import dataclasses
+import difflib
 import math
 import tomllib
+from collections.abc import Iterable
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -601,6 +603,12 @@ def _validate_cross(p: TestbedParams) -> None:
                              f"[0, {20 * p.simulation.control_period_s:g}] s (20 control periods)")
 
 
+def did_you_mean(name: str, valid: Iterable[str]) -> str:
+    """`` (did you mean 'x'?)`` for the valid name closest to a misspelt ``name``; empty if none is close."""
+    close = difflib.get_close_matches(name, list(valid), n=1)
+    return f" (did you mean {close[0]!r}?)" if close else ""
+
+
 def from_dict(overrides: dict[str, Any], base: TestbedParams | None = None) -> TestbedParams:
     """Apply ``{group: {field: value}}`` to ``base`` (defaults if None), validating every key and value."""
     base = base or TestbedParams()
@@ -608,15 +616,16 @@ def from_dict(overrides: dict[str, Any], base: TestbedParams | None = None) -> T
     updated = {}
     for gname, values in overrides.items():
         if gname not in groups:
-            raise ParameterError(f"unknown parameter group [{gname}]; valid groups: {', '.join(groups)}")
+            raise ParameterError(f"unknown parameter group [{gname}]{did_you_mean(gname, groups)}; valid groups: "
+                                 f"{', '.join(groups)}")
         if not isinstance(values, dict):
             raise ParameterError(f"[{gname}] must be a table of fields, got {values!r}")
         current = getattr(base, gname)
         names = {f.name: f for f in dataclasses.fields(current)}
         for key, value in values.items():
             if key not in names:
-                raise ParameterError(f"unknown parameter {gname}.{key}; valid fields of [{gname}]: "
-                                     f"{', '.join(names)}")
+                raise ParameterError(f"unknown parameter {gname}.{key}{did_you_mean(key, names)}; valid fields "
+                                     f"of [{gname}]: {', '.join(names)}")
             if names[key].type in (float, "float") and isinstance(value, int) and not isinstance(value, bool):
                 values = {**values, key: float(value)}
         try:

@@ -948,8 +948,9 @@ def test_a_parquet_footer_declaring_2_to_the_40_rows_is_refused_before_reading(t
     footer = data[-8 - length:-8].replace(b"\x16\x10", b"\x16" + _varint(2 ** 40 << 1))
     (tmp_path / "run.parquet").write_bytes(data[:-8 - length] + footer + struct.pack("<I", len(footer)) + b"PAR1")
     kind, text = child.read(tmp_path / "run.parquet")
+    columns = len(small_log(n=8).columns)
     assert (kind, re.sub(r"\(\d.*", "", text)) == (
-        "LogError", "run.parquet: the file declares 1099511627776 rows of 19 column(s) ")
+        "LogError", f"run.parquet: the file declares 1099511627776 rows of {columns} column(s) ")
 
 
 def test_a_mat_inflating_past_a_quarter_of_the_memory_is_refused(tmp_path, monkeypatch):

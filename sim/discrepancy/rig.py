@@ -53,7 +53,7 @@ from models.gim8108_testbed.derived import FIXTURES, derive
 from sim.discrepancy.effects import EFFECTS, rig_kind
 from sim.discrepancy.effects.transport_delay import MAX_DELAY_S
 from sim.logmap import LogMap, LogMapError, log_map_from_dict
-from sim.params import ParameterError, TestbedParams, from_dict
+from sim.params import ParameterError, TestbedParams, did_you_mean, from_dict
 from sim.runlog import TIME_CONVENTIONS, RunLog
 
 MODELS = ("testbed", "rigid-joint")
@@ -205,9 +205,7 @@ def load_rig(path: str | Path) -> Rig:
 def rig_from_dict(data: dict[str, Any], source: str = "<rig>") -> Rig:
     """Validate a rig given as a dict (the TOML's content)."""
     data = dict(data)
-    model = data.pop("model", None)
-    if model not in MODELS:
-        raise RigError(f"model = {model!r}: valid values are {', '.join(map(repr, MODELS))}")
+    model = _required(data, "model", MODELS)
     effects = _effects(data.pop("effects", []))
     log_table = data.pop("log", None)
     try:
@@ -217,7 +215,8 @@ def rig_from_dict(data: dict[str, Any], source: str = "<rig>") -> Rig:
     free = data.pop("free", [])
     convention = data.pop("time_convention", None)
     if convention is not None and convention not in TIME_CONVENTIONS:
-        raise RigError(f"time_convention = {convention!r}: valid values are {', '.join(map(repr, TIME_CONVENTIONS))}")
+        raise RigError(f"time_convention = {convention!r}{did_you_mean(str(convention), TIME_CONVENTIONS)}: valid "
+                       f"values are {', '.join(map(repr, TIME_CONVENTIONS))}")
     if not isinstance(free, list) or not all(isinstance(f, str) for f in free):
         raise RigError(f"free = {free!r}: expected a list of parameter names")
     if model == "testbed":
@@ -239,6 +238,19 @@ def rig_from_dict(data: dict[str, Any], source: str = "<rig>") -> Rig:
                                log_map=log_map)
 
 
+def _required(data: dict[str, Any], key: str, valid: tuple[str, ...]) -> str:
+    """``data[key]`` (popped) if it is one of ``valid``; a RigError naming a misspelt key where one is close."""
+    value = data.pop(key, None)
+    if value in valid:
+        return value
+    choices = ", ".join(map(repr, valid))
+    if value is None:
+        close = difflib.get_close_matches(key, list(data), n=1, cutoff=0.6)
+        hint = f" ({close[0]!r} = {data[close[0]]!r} is given: did you mean {key!r}?)" if close else ""
+        raise RigError(f"{key} is missing{hint}; valid values: {choices}")
+    raise RigError(f"{key} = {value!r}{did_you_mean(str(value), valid)}: valid values are {choices}")
+
+
 def _effects(tables: Any) -> list[AddedEffect]:
     if not isinstance(tables, list):
         raise RigError("effects must be an array of tables ([[effects]])")
@@ -258,7 +270,8 @@ def _effects(tables: Any) -> list[AddedEffect]:
             if key == "name":
                 continue
             if key not in specs:
-                raise RigError(f"effects[{i}] ({name}): unknown parameter {key!r}; valid: {', '.join(specs)}")
+                raise RigError(f"effects[{i}] ({name}): unknown parameter {key!r}{did_you_mean(key, specs)}; valid: "
+                               f"{', '.join(specs)}")
             p = specs[key]
             values[key] = _number(f"effects[{i}].{key}", value, *p.valid, p.unit_hinge)
         missing = [k for k in specs if k not in values]
@@ -278,9 +291,7 @@ def _number(name: str, value: Any, low: float, high: float, unit: str) -> float:
 
 
 def _testbed(data: dict[str, Any], source: str) -> Rig:
-    fixture = data.pop("fixture", None)
-    if fixture not in FIXTURES:
-        raise RigError(f"fixture = {fixture!r}: valid values are {', '.join(map(repr, FIXTURES))}")
+    fixture = _required(data, "fixture", FIXTURES)
     joint = data.pop("joint", "hinge")
     if joint != "hinge":
         raise RigError(f"joint = {joint!r}: the testbed is a hinge (valid value 'hinge')")
@@ -322,9 +333,7 @@ def _rigid_name_applies(name: str, joint: str) -> bool:
 
 
 def _rigid(data: dict[str, Any], source: str) -> Rig:
-    joint = data.pop("joint", None)
-    if joint not in JOINTS:
-        raise RigError(f"joint = {joint!r}: valid values are {', '.join(map(repr, JOINTS))}")
+    joint = _required(data, "joint", JOINTS)
     values: dict[str, float] = {}
     friction = data.pop("friction", {})
     if not isinstance(friction, dict):
@@ -348,7 +357,8 @@ def _rigid(data: dict[str, Any], source: str) -> Rig:
         values.setdefault(theta_key, default)
     for key, value in friction.items():
         if key not in _RIGID_FRICTION:
-            raise RigError(f"unknown key friction.{key!r}; valid keys: {', '.join(_RIGID_FRICTION)}")
+            raise RigError(f"unknown key friction.{key!r}{did_you_mean(key, _RIGID_FRICTION)}; valid keys: "
+                           f"{', '.join(_RIGID_FRICTION)}")
         theta_key, unit_h, unit_s, low, high = _RIGID_FRICTION[key]
         values[theta_key] = _number(f"friction.{key}", value, low, high, unit_s if joint == "slide" else unit_h)
     values.setdefault("coulomb", 0.0)

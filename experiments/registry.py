@@ -83,7 +83,7 @@ EXPERIMENTS: dict[str, Experiment] = {e.name: e for e in (
     Experiment("admittance", "Sec. IV-C, Fig. 13", run_admittance),
 )}
 
-# Every command (python -m experiments.<name>) -> what it is for, in the README's order.
+# Every command (python -m experiments.<name>) -> what it is for.
 COMMANDS: dict[str, str] = {
     "plant": "the model card: every parameter with unit and source, derived quantities, simulated measurements",
     "step": "PI torque steps and the disturbance test, current vs sensor feedback (Table VI)",

@@ -1,8 +1,12 @@
-"""The worked examples of ``docs/own_logs.md``, made and run here so that the page cannot go stale.
+"""The worked examples of the documentation, made and run here so that the pages cannot go stale.
 
-    python -m tests.own_log_examples [--write] [--out DIR]
+    python -m tests.doc_examples [--write] [--out DIR]
 
-Three records as drives write them, each analysed straight from its file through a rig's ``[log]`` table:
+``docs/discrepancy.md``: the demo (``experiments.discrepancy_demo``, viscous friction hidden in a log of the
+testbed's free lever) analysed by ``experiments.discrepancy``, its report shortened, and what it says.
+
+``docs/own_logs.md``: three records as drives write them, each analysed straight from its file through a rig's
+``[log]`` table:
 
 - ``emps``: the EMPS benchmark's estimation record as it is (``../shared/data/emps/DATA_EMPS.mat``; the force is
   ``gtau * vir``), validated on its pulses record; left out where the records are absent.
@@ -13,11 +17,11 @@ Three records as drives write them, each analysed straight from its file through
 - ``robot``: a robot joint's CSV log with its own column names and units (ms, degrees, mN·m, the effort's sign
   reversed), at 1 kHz. Made by the independent simulator: a joint whose viscous friction is twice the rig's.
 
-Each example is a set of text blocks (the rig file, the command, the head of the record, what the command
-prints); ``docs/own_logs.md`` holds each block between ``<!-- example: NAME -->`` and ``<!-- end -->``. With
-``--write`` the page's blocks are replaced by what the examples give now; without it, the stale blocks are
-named. ``--out DIR`` keeps the records and rig files, to run the page's commands in ``DIR``.
-``tests/test_own_logs.py`` checks that the page holds what the examples give.
+Each example is a set of text blocks (a rig file, a command, the head of a record, what a command prints); a
+page holds each block between ``<!-- example: NAME -->`` and ``<!-- end -->``. With ``--write`` the pages'
+blocks are replaced by what the examples give now; without it, the stale blocks are named. ``--out DIR`` keeps
+the records and rig files, to run the pages' commands in ``DIR``. ``tests/test_doc_examples.py`` checks that
+the pages hold what the examples give.
 """
 
 from __future__ import annotations
@@ -29,13 +33,14 @@ import json
 import math
 import re
 import sys
+import textwrap
 from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
-PAGE = ROOT / "docs" / "own_logs.md"
+DOCS = ROOT / "docs"
 EMPS = ROOT.parent / "shared" / "data" / "emps"
 DURATION_S = 20.0
 SEED = 3
@@ -154,8 +159,12 @@ def _json_head(path: Path) -> str:
     return text.replace("\n ]\n}", ",\n  ...\n ]\n}")
 
 
-def _printed(argv: list[str]) -> str:
-    """What ``python -m experiments.discrepancy ARGV`` prints of the mapping, the findings and the final model."""
+SHOWN = ("Findings", "Tentative", "Final model", "Unexplained", "Relative effort", "Verdict")
+
+
+def _printed(argv: list[str], shown: tuple[str, ...] = SHOWN) -> str:
+    """What ``python -m experiments.discrepancy ARGV`` prints of the mapping and of the sections ``shown`` (the
+    report's unindented lines that start so, with their indented lines)."""
     from experiments import discrepancy
 
     out = io.StringIO()
@@ -164,8 +173,7 @@ def _printed(argv: list[str]) -> str:
     keep, inside = [], False
     for line in out.getvalue().splitlines():
         if not line.startswith(" "):
-            inside = line.startswith(("Findings", "Tentative", "Final model", "Unexplained", "Relative effort",
-                                      "Verdict"))
+            inside = line.startswith(shown)
         mapping = re.match(r"[\w.]+ ?(\[span \d+ of \d+\])?: ", line) and not line.startswith(("Verdict", "wrote"))
         if inside or mapping:
             keep.append(line)
@@ -177,8 +185,46 @@ def _command(argv: list[str]) -> str:
     return "python -m experiments.discrepancy " + " ".join(quoted)
 
 
-def examples(folder: Path) -> dict[str, str]:
-    """Every block of the page, made in ``folder`` (the EMPS blocks only where its records are present)."""
+def discrepancy_blocks(folder: Path) -> dict[str, str]:
+    """docs/discrepancy.md's worked example: the demo's log analysed, made in ``folder``."""
+    from experiments import discrepancy_demo
+
+    out = io.StringIO()
+    with contextlib.redirect_stdout(out), contextlib.redirect_stderr(io.StringIO()):
+        discrepancy_demo.main(["--effect", "viscous_friction", "--out", str(folder / "demo")])
+    hidden = next(line for line in out.getvalue().splitlines() if line.startswith("hidden:"))
+    saved = folder / "demo" / "extended.toml"
+    report = _printed([str(folder / "demo" / "demo_log.csv"), "--rig", str(folder / "demo" / "demo_rig.toml"),
+                       "--save-rig", str(saved), "--json", str(folder / "demo" / "result.json"), "--no-plot",
+                       "--workers", "1"],
+                      ("Baseline held-out", "Findings", "Final model", "Residual left", "Relative effort",
+                       "The logs cannot", "MuJoCo replay", "Verdict"))
+    commands = ("python -m experiments.discrepancy_demo --effect viscous_friction --out demo/\n"
+                f"# {hidden}\n"
+                "python -m experiments.discrepancy demo/demo_log.csv --rig demo/demo_rig.toml --save-rig "
+                "demo/extended.toml")
+    return {"demo-commands": commands, "demo-output": report.replace(str(saved), "demo/extended.toml"),
+            "demo-summary": _demo_summary(json.loads((folder / "demo" / "result.json").read_text(encoding="utf-8")),
+                                          hidden)}
+
+
+def _demo_summary(result: dict, hidden: str) -> str:
+    """What the worked example shows, in figures of its result."""
+    truth = float(re.search(r"= (\S+)", hidden).group(1))
+    found = result["findings"][0]["parameters"]["viscous"]["value"]
+    errors = result["logs"][0]["relative_effort_error"]
+    replay = result["baseline"]["replay"]
+    return textwrap.fill(
+            f"The viscous coefficient comes back within {100 * abs(found / truth - 1):.2g} %, as a re-fit of the "
+            f"rig's own value; the effort prediction error on the held-out part falls from "
+            f"{100 * errors['baseline']:.3g} % to {100 * errors['final']:.2g} % of the command, and that is the "
+            f"figure of `demo/extended.toml` as an analysis of it reads it. The replay confirms the saved rig: the "
+            f"lever's angle follows the log to {1e3 * replay['rmse_extended']:.2g} mrad instead of "
+            f"{1e3 * replay['rmse_baseline']:.3g} mrad.", width=115)
+
+
+def own_logs_blocks(folder: Path) -> dict[str, str]:
+    """Every block of docs/own_logs.md, made in ``folder`` (the EMPS blocks only where its records are present)."""
     blocks: dict[str, str] = {}
     runs: list[tuple[str, str, Callable[[Path], None] | None, str, list[str]]] = [
         ("servo", "servo.json", servo_record, SERVO_RIG, []),
@@ -207,6 +253,10 @@ def examples(folder: Path) -> dict[str, str]:
     return blocks
 
 
+PAGES: dict[str, Callable[[Path], dict[str, str]]] = {"discrepancy.md": discrepancy_blocks,
+                                                      "own_logs.md": own_logs_blocks}
+
+
 def page_blocks(text: str) -> dict[str, str]:
     """The page's example blocks: name -> text inside its code fence."""
     return {m["name"]: _unfenced(m["body"]) for m in BLOCK.finditer(text)}
@@ -218,7 +268,10 @@ def _unfenced(body: str) -> str:
 
 
 def _fence(name: str, body: str) -> str:
-    kind = "toml" if name.endswith("-rig") else "json" if name == "servo-record" else "text"
+    if name.endswith("-summary"):
+        return body
+    kind = ("toml" if name.endswith("-rig") else "json" if name == "servo-record" else
+            "bash" if name.endswith("-commands") else "text")
     return f"```{kind}\n{body}\n```"
 
 
@@ -247,22 +300,24 @@ def main(argv: list[str] | None = None) -> int:
     import tempfile
 
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("--write", action="store_true", help=f"rewrite the example blocks of {PAGE.name}")
+    parser.add_argument("--write", action="store_true", help="rewrite the pages' example blocks")
     parser.add_argument("--out", type=Path, help="keep the example records and rig files in this folder")
     args = parser.parse_args(argv)
-    if args.out:
-        args.out.mkdir(parents=True, exist_ok=True)
-        blocks = examples(args.out)
-    else:
-        with tempfile.TemporaryDirectory() as folder:
-            blocks = examples(Path(folder))
-    text = PAGE.read_text(encoding="utf-8")
-    if args.write:
-        PAGE.write_text(written(text, blocks), encoding="utf-8")
-        print(f"wrote {len(blocks)} blocks to {PAGE}")
-        return 0
-    stale = [name for name, body in blocks.items() if not same(page_blocks(text).get(name, ""), body)]
-    print("stale: " + ", ".join(stale) if stale else "the page holds what the examples give")
+    stale = []
+    for page, make in PAGES.items():
+        with tempfile.TemporaryDirectory() as temporary:
+            folder = args.out / page.removesuffix(".md") if args.out else Path(temporary)
+            folder.mkdir(parents=True, exist_ok=True)
+            blocks = make(folder)
+        text = (DOCS / page).read_text(encoding="utf-8")
+        if args.write:
+            (DOCS / page).write_text(written(text, blocks), encoding="utf-8")
+            print(f"wrote {len(blocks)} blocks to docs/{page}")
+        else:
+            shown = page_blocks(text)
+            stale += [f"{page}: {name}" for name, body in blocks.items() if not same(shown.get(name, ""), body)]
+    if not args.write:
+        print("stale: " + ", ".join(stale) if stale else "the pages hold what the examples give")
     return 1 if stale else 0
 
 

@@ -940,18 +940,21 @@ def _rows(indices: np.ndarray) -> str:
     return shown + (", ..." if len(indices) > FIRST_FEW else "")
 
 
-def _check_samples(columns: dict[str, np.ndarray], *, max_jitter: float) -> None:
-    """Equal lengths, length, finiteness, strictly increasing ``time``, regular sampling."""
+def _check_samples(columns: dict[str, np.ndarray], *, max_jitter: float, first: int = 0) -> None:
+    """Equal lengths, length, finiteness, strictly increasing ``time``, regular sampling.
+
+    ``first`` is the index in the file of the columns' first sample (a part of a record), for the rows named.
+    """
     n = len(columns["time"])
     for name, values in columns.items():
         if len(values) != n:
             raise LogError(f"column {name!r} has {len(values)} samples; 'time' has {n}", column=name,
-                           row=row_of(min(len(values), n)))
+                           row=row_of(first + min(len(values), n)))
     if n < MIN_SAMPLES:
         raise LogError(f"the log has {n} sample(s); at least MIN_SAMPLES = {MIN_SAMPLES} are needed (the sampling "
                        f"check compares steps with the median step)")
     for name, values in columns.items():
-        bad = np.flatnonzero(~np.isfinite(values))
+        bad = np.flatnonzero(~np.isfinite(values)) + first
         if len(bad):
             raise LogError(f"column {name!r}: {len(bad)} value(s) NaN or infinite, at rows {_rows(bad)}",
                            column=name, row=row_of(int(bad[0])))
@@ -961,9 +964,9 @@ def _check_samples(columns: dict[str, np.ndarray], *, max_jitter: float) -> None
     if len(back):
         i = int(back[0])
         now, before = float(time[i]), float(time[i - 1])
-        raise LogError(f"column 'time', row {row_of(i)}: {now:.9g} s does not exceed {before:.9g} s of row "
-                       f"{row_of(i - 1)}; time must increase strictly ({len(back)} such row(s): {_rows(back)})",
-                       column="time", row=row_of(i))
+        raise LogError(f"column 'time', row {row_of(first + i)}: {now:.9g} s does not exceed {before:.9g} s of row "
+                       f"{row_of(first + i - 1)}; time must increase strictly ({len(back)} such row(s): "
+                       f"{_rows(back + first)})", column="time", row=row_of(first + i))
     if math.isinf(max_jitter):
         return
     median = float(np.median(dt))
@@ -971,10 +974,12 @@ def _check_samples(columns: dict[str, np.ndarray], *, max_jitter: float) -> None
     irregular = np.flatnonzero(deviation > max_jitter) + 1
     if len(irregular):
         i = int(irregular[0])
-        raise LogError(f"column 'time', row {row_of(i)}: the step {dt[i - 1]:.6g} s from row {row_of(i - 1)} "
-                       f"deviates {100 * deviation[i - 1]:.3g} % from the median step {median:.6g} s; "
-                       f"max_jitter = {100 * max_jitter:.3g} % ({len(irregular)} such step(s), at rows "
-                       f"{_rows(irregular)})", column="time", row=row_of(i))
+        raise LogError(f"column 'time', row {row_of(first + i)}: the step {dt[i - 1]:.6g} s from row "
+                       f"{row_of(first + i - 1)} deviates {100 * deviation[i - 1]:.3g} % from the median step "
+                       f"{median:.6g} s; max_jitter = {100 * max_jitter:.3g} % ({len(irregular)} such step(s), at "
+                       f"rows {_rows(irregular + first)}); a record sampled irregularly can be put on a uniform "
+                       f"grid with --log resample=STEP (or resample in the rig's [log] table)",
+                       column="time", row=row_of(first + i))
 
 
 def _suffix(path: Path) -> str:

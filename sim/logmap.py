@@ -29,6 +29,7 @@ import difflib
 import math
 import re
 import tomllib
+import warnings
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from functools import cache
@@ -55,7 +56,9 @@ INTERPOLATIONS = ("linear", "previous")
 DEFAULT_GAP_STEPS = 5  # a gap longer than this many grid steps is refused unless max_gap says otherwise
 MIN_SPAN_SAMPLES = 50  # an enabled span shorter than this is left out (and named)
 KEYS = ("columns", "units", "twos_complement", "records", "resample", "interpolation", "max_gap", "enable")
-MAX_BITS = 64
+MAX_BITS = 53  # a count is read as a float64, which holds every integer up to 2**53 exactly
+MAX_UPSAMPLING = 100  # a resampling grid of more than this many times the record's samples is refused
+MAX_UNIT_TEXT = 100  # characters of a unit or a duration
 
 # what a wrong unit's message offers, by the dimension of the column
 COMMON_UNITS: dict[str, tuple[str, ...]] = {
@@ -162,7 +165,8 @@ def log_map_from_dict(data: Any) -> LogMap:
         raise LogMapError(f"twos_complement = {bits!r}: expected a table of variable = bits, e.g. {{pwm = 16}}")
     for name, b in bits.items():
         if not 2 <= b <= MAX_BITS:
-            raise LogMapError(f"twos_complement.{name} = {b}: valid range [2, {MAX_BITS}] bits")
+            raise LogMapError(f"twos_complement.{name} = {b}: valid range [2, {MAX_BITS}] bits (counts are read as "
+                              f"float64, exact up to 2**{MAX_BITS})")
     records = _optional_string(data, "records")
     enable = _optional_string(data, "enable")
     if enable is not None:
@@ -180,8 +184,9 @@ def log_map_from_dict(data: Any) -> LogMap:
 def with_options(data: dict[str, Any], options: Sequence[str]) -> dict[str, Any]:
     """``data`` (a ``[log]`` table) with command-line options ``KEY=VALUE`` laid over it.
 
-    KEY is a key of the table or ``columns.NAME``, ``units.NAME``, ``twos_complement.NAME``; VALUE is read as
-    TOML where it is a TOML value (``16``, ``"vir * gtau"``) and taken as text otherwise (``vir * gtau``, ``5 ms``).
+    KEY is a key of the table or ``columns.NAME``, ``units.NAME``, ``twos_complement.NAME``. VALUE is text
+    (``vir * gtau``, ``5 ms``, or quoted as TOML: ``"vir * gtau"``); a number where the key takes one
+    (``twos_complement.pwm=16``, ``resample=0.005`` seconds).
     """
     out = {key: dict(value) if isinstance(value, dict) else value for key, value in data.items()}
     for option in options:
@@ -190,15 +195,21 @@ def with_options(data: dict[str, Any], options: Sequence[str]) -> dict[str, Any]
         if not sep or not key:
             raise LogMapError(f"--log {option!r}: expected KEY=VALUE, e.g. --log columns.tau_cmd='vir * gtau'")
         try:
-            value = tomllib.loads(f"v = {text}")["v"]
-        except tomllib.TOMLDecodeError:
-            value = text.strip()
+            parsed = tomllib.loads(f"v = {text}")
+        except (ValueError, RecursionError):  # TOMLDecodeError; too many digits; nested too deep
+            parsed = {}
+        value = parsed["v"] if list(parsed) == ["v"] else text.strip()  # 'a\nb = 1' is text, not two keys
         table, dot, name = key.partition(".")
+        numeric = table == "twos_complement" or key in ("resample", "max_gap")
+        if not isinstance(value, str) and not (numeric and isinstance(value, (int, float))):
+            value = text.strip()  # enable=true, records=2024: names, as typed
         if dot:
             if table not in ("columns", "units", "twos_complement") or not name:
                 raise LogMapError(f"--log {option!r}: {table!r} has no members; tables: columns, units, "
                                   f"twos_complement")
-            out.setdefault(table, {})[name] = value
+            if not isinstance(out.setdefault(table, {}), dict):
+                raise LogMapError(f"--log {option!r}: {table} = {out[table]!r} is not a table to set a member of")
+            out[table][name] = value
         else:
             out[key] = value
     return out
@@ -211,8 +222,11 @@ def _did_you_mean(name: str, valid: Sequence[str]) -> str:
 
 def _string_table(data: dict[str, Any], key: str) -> dict[str, str]:
     table = data.get(key, {})
-    if not isinstance(table, dict) or not all(isinstance(v, str) for v in table.values()):
+    if not isinstance(table, dict):
         raise LogMapError(f"{key} = {table!r}: expected a table of names to strings")
+    for name, value in table.items():
+        if not isinstance(value, str):
+            raise LogMapError(f"{key}.{name} = {value!r}: expected text, e.g. {key}.{name} = \"...\"")
     return dict(table)
 
 
@@ -229,10 +243,11 @@ def _duration(data: dict[str, Any], key: str) -> float | None:
     if value is None:
         return None
     if isinstance(value, (int, float)) and not isinstance(value, bool):
-        seconds = float(value)
+        seconds = float(value) if abs(value) < 1e308 else math.inf  # an int too large for a float
     elif isinstance(value, str):
+        text = _pint_text(value, key)
         try:
-            quantity = _registry().Quantity(_normalised(value))
+            quantity = _registry().Quantity(text)
             seconds = float(quantity.to("s").magnitude)
         except Exception as err:  # pint raises its own errors and ValueError, AttributeError on odd text
             raise LogMapError(f"{key} = {value!r} is not a duration ({type(err).__name__}); e.g. \"5 ms\"") from None
@@ -245,7 +260,9 @@ def _duration(data: dict[str, Any], key: str) -> float | None:
 
 # ------------------------------------------------------------------------------------------------- expressions
 
-_BACKTICKED = re.compile(r"`([^`]*)`")
+# a backticked name, or a word with a character beyond ASCII (which Python's parser would change to its NFKC
+# form: 'µ' to 'μ', 'ﬁ' to 'fi'): both are kept as written
+_BACKTICKED = re.compile(r"`([^`]*)`|(\w*[^\W\x00-\x7f]\w*)")
 _NODES = (ast.Expression, ast.BinOp, ast.UnaryOp, ast.Constant, ast.Name, ast.Attribute, ast.Load, ast.Add,
           ast.Sub, ast.Mult, ast.Div, ast.USub, ast.UAdd)
 
@@ -280,13 +297,17 @@ def _parse(text: str, where: str) -> _Expression:
 
     def placeholder(match: re.Match) -> str:
         key = f"_v{len(quoted)}_"
-        quoted[key] = match.group(1)
+        while key in text:  # a name of the expression itself
+            key += "_"
+        quoted[key] = match.group(1) if match.group(1) is not None else match.group(2)
         return key
 
     tree = None
     if len(text) <= MAX_EXPRESSION:
         try:
-            tree = ast.parse(_BACKTICKED.sub(placeholder, text).strip(), mode="eval")
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore", SyntaxWarning)  # '0x1for' warns, then is refused below
+                tree = ast.parse(_BACKTICKED.sub(placeholder, text).strip(), mode="eval")
         except (SyntaxError, ValueError, RecursionError, MemoryError):
             tree = None
     if tree is None or not all(_allowed(node) for node in ast.walk(tree)):
@@ -312,7 +333,7 @@ def _name_of(node: ast.AST, quoted: dict[str, str]) -> str:
     if isinstance(node, ast.Name):
         return quoted.get(node.id, node.id)
     if isinstance(node, ast.Attribute):
-        return f"{_name_of(node.value, quoted)}.{node.attr}"
+        return f"{_name_of(node.value, quoted)}.{quoted.get(node.attr, node.attr)}"
     raise LogMapError(f"{ast.dump(node)} is not a name")
 
 
@@ -361,10 +382,33 @@ def _normalised(unit: str) -> str:
     return unit.replace("·", "*").replace("⋅", "*").replace("µ", "u").replace("μ", "u")
 
 
+_SMALL_EXPONENT = re.compile(r"\s*\(?\s*[-+]?\s*(\d{1,2}(\.\d*)?|\.\d+)\s*\)?(?![\d.eE(]|\s*\*\*)")
+
+
+def _pint_text(text: str, where: str) -> str:
+    """``text`` (a unit or a duration) normalised for pint; a LogMapError if it is long or raises something to
+    a power other than a short number: pint computes integer powers exactly, and 9**9**9 takes hours."""
+    import pint
+
+    if len(text) <= MAX_UNIT_TEXT:
+        normalised = _normalised(text)
+        processed = pint.util.string_preprocessor(normalised)  # '^', '²' and 'squared' become '**'
+        if not any(_big_power(processed, power.start()) for power in re.finditer(r"\*\*", processed)):
+            return normalised
+    raise LogMapError(f"{where} = {text[:80]!r}: expected at most {MAX_UNIT_TEXT} characters, with powers only of a "
+                      f"name or a number and to a number of one or two digits (m/s**2, s^-1)")
+
+
+def _big_power(text: str, at: int) -> bool:
+    """Whether the power operator at ``at`` raises a parenthesised group, or raises to more than a short number."""
+    return text[:at].rstrip().endswith(")") or not _SMALL_EXPONENT.match(text, at + 2)
+
+
 def _pint_unit(unit: str, where: str) -> Any:
     registry = _registry()
+    text = _pint_text(unit, where)
     try:
-        return registry.Unit(_normalised(unit))
+        return registry.Unit(text)
     except Exception:  # pint's UndefinedUnitError, DefinitionSyntaxError, ValueError, AssertionError ...
         known = sorted({u for units in COMMON_UNITS.values() for u in units} | {"%", "count"})
         close = difflib.get_close_matches(unit.strip(), known, n=1, cutoff=0.6)
@@ -428,8 +472,8 @@ def _mapped(path: Path, log_map: LogMap, joint: str, max_jitter: float) -> Mappe
     units = joint_units(joint)
     variables = _Lookup(found.values, log_map.twos_complement)
     expressions = {name: _parse(text, f"columns.{name}") for name, text in log_map.columns.items()}
-    for name in units:
-        if name not in expressions and name in found.values:
+    for name in units:  # a variable of a column's name, unless it is one number or text (a header's member)
+        if name not in expressions and isinstance(found.values.get(name), (list, tuple, np.ndarray)):
             expressions[name] = _parse(f"`{name}`", name)
     if "time" not in expressions:
         raise LogMapError(f"no variable is mapped to 'time' [s] and the file has none of that name; "
@@ -476,23 +520,20 @@ def _mapped(path: Path, log_map: LogMap, joint: str, max_jitter: float) -> Mappe
             raise LogMapError(f"enable = {log_map.enable!r} is not a variable with one value per sample")
         spans, note = _enabled_spans(enabled, columns["time"], log_map.enable)
         notes.append(note)
-    logs = []
+    logs, span_notes = [], []
     for k, (start, stop) in enumerate(spans):
         part = {name: values[start:stop] for name, values in columns.items()}
+        own = []
         if log_map.resample_s is not None:
             part, note = _resampled(part, log_map, start)
-            notes.append(note if len(spans) == 1 else f"span {k + 1}: {note}")
+            own.append(note if len(spans) == 1 else f"span {k + 1}: {note}")
         else:
-            try:
-                _check_samples(part, max_jitter=max_jitter)
-            except LogError as err:
-                if "max_jitter" in str(err):
-                    raise LogError(f"{err}; to put the record on a uniform grid: resample = \"STEP\" in the rig's "
-                                   f"[log] table or --log resample=STEP", column=err.column, row=err.row) from None
-                raise
-        meta = {**found.meta, "mapping": {"file": path.name, "notes": notes, "span": k + 1, "spans": len(spans)}}
+            _check_samples(part, max_jitter=max_jitter, first=start)
+        span_notes += own
+        meta = {**found.meta, "mapping": {"file": path.name, "notes": notes + own, "span": k + 1,
+                                          "spans": len(spans)}}
         logs.append((SlideRunLog if joint == "slide" else RunLog)(part, dict(column_units), meta))
-    return MappedRecord(tuple(logs), tuple(notes))
+    return MappedRecord(tuple(logs), tuple(notes + span_notes))
 
 
 def _declared_unit(expression: _Expression, declared: dict[str, str]) -> str | None:
@@ -538,6 +579,8 @@ class _Lookup:
 
 def _numbers(name: str, value: Any) -> Any:
     """A variable as a float or a 1-D float64 array; a LogError naming the variable and row otherwise."""
+    if isinstance(value, (np.ndarray, np.generic)) and np.ndim(value) == 0:
+        value = value.item()  # a v7.3 .mat's scalar dataset, a NumPy scalar: the Python number (or text, None)
     if isinstance(value, np.ndarray) and value.dtype.kind in "iuf" and value.size >= 1:
         if value.size == 1:
             return float(value.reshape(-1)[0])
@@ -562,7 +605,8 @@ def _numbers(name: str, value: Any) -> Any:
                     f"{str(cell)[:40]!r}, not a number")
                 raise LogError(f"variable {name!r}, row {row_of(i)}: {what}", column=name, row=row_of(i)) from None
         return out
-    kind = "text" if isinstance(value, str) else "empty" if np.size(value) == 0 else type(value).__name__
+    kind = ("text" if isinstance(value, str) else "empty" if value is None or np.size(value) == 0
+            else type(value).__name__)
     raise LogMapError(f"variable {name!r} is {kind}, not a number or a column of numbers")
 
 
@@ -599,7 +643,8 @@ def _enabled_spans(enabled: np.ndarray, time: np.ndarray, expression: str) -> tu
     note = (f"enable = {expression}: {len(kept)} span(s) kept, {', '.join(rows(a, b) for a, b in kept)}; "
             f"{off} of {len(on)} samples left out where it is 0")
     if short:
-        note += f", and {len(short)} enabled span(s) shorter than {MIN_SPAN_SAMPLES} samples"
+        note += (f"; {len(short)} enabled span(s) shorter than MIN_SPAN_SAMPLES = {MIN_SPAN_SAMPLES} samples left out: "
+                 f"{', '.join(rows(a, b) for a, b in short[:5])}{', ...' if len(short) > 5 else ''}")
     return kept, note
 
 
@@ -630,7 +675,13 @@ def _resampled(columns: dict[str, np.ndarray], log_map: LogMap, first: int) -> t
                        f"cut the record there or raise max_gap", column="time", row=row_of(i + first))
     median = float(np.median(dt))
     jitter = float(np.max(np.abs(dt - median)) / median)
-    count = int(math.floor((time[-1] - time[0]) / step * (1 + 1e-12))) + 1
+    steps = float(time[-1] - time[0]) / step * (1 + 1e-12)  # a Python float: inf rather than a warning
+    if not MIN_SAMPLES - 1 <= steps <= MAX_UPSAMPLING * len(time):
+        raise LogError(f"resample = {1e3 * step:.6g} ms makes {np.floor(steps) + 1:.6g} sample(s) of the record's "
+                       f"{len(time)} over {time[-1] - time[0]:.6g} s: at least MIN_SAMPLES = {MIN_SAMPLES} and at "
+                       f"most MAX_UPSAMPLING = {MAX_UPSAMPLING} times as many are accepted (its median step is "
+                       f"{1e3 * median:.6g} ms)")
+    count = int(math.floor(steps)) + 1
     grid = time[0] + step * np.arange(count)
     if log_map.interpolation == "linear":
         out = {name: np.interp(grid, time, values) for name, values in columns.items() if name != "time"}

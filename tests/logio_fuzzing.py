@@ -1,21 +1,28 @@
-"""Mutation fuzzing of ``sim.logio.read_log``: seed logs, byte mutations, and a reader in a child process.
+"""Mutation fuzzing of ``sim.logio.read_log`` and ``sim.logmap.read_mapped``: seed logs, byte mutations, and a
+reader in a child process.
 
     python -m tests.logio_fuzzing [--seconds 90] [--seed 0]
 
 Seeds are small valid logs written by ``write_log`` (CSV with its sidecar, Parquet, compressed .mat) and
-variants of them (an uncompressed .mat, a MATLAB v4 .mat, uncompressed Parquet, UTF-16 and cp1252 CSV). A
-case mutates one seed file (or a CSV's sidecar) with a few operations (bit flips, interesting 32-bit values,
-truncation, insertion, deletion, duplication, splicing from another seed, re-encoding a CSV, and mutations
-inside a compressed .mat element), then reads it in a child process, so that a crash of native code is
-counted rather than fatal. The script prints the number of cases and the outcomes by kind and exits 1 if
-any read ended in an exception other than ``LogError``, a LogError not naming its file, a signal, or a
-changed input file. The most frequent LogError messages of each format follow the counts.
+variants of them (an uncompressed .mat, a MATLAB v4 .mat, uncompressed Parquet, UTF-16 and cp1252 CSV), JSON
+run logs (a list of records; records under a key beside a header with 'units'), and a drive's own records in
+every format (kind "mapped"), read with ``read_mapped`` and the fixed map :data:`MAPPED_TABLE` (expressions,
+units, two's complement, resampling, enable). A case mutates one seed file (or a CSV's sidecar) with a few
+operations (bit flips, interesting 32-bit values, truncation, insertion, deletion, duplication, splicing from
+another seed, re-encoding a CSV, mutations inside a compressed .mat element, and for JSON a value replaced by
+an odd one or removed), then reads it in a child process, so that a crash of native code is counted rather
+than fatal. The script prints the number of cases and the outcomes by kind and exits 1 if any read ended in an
+exception other than ``LogError``, a LogError not naming its file, a signal, or a changed input file. The most
+frequent LogError messages of each kind follow the counts.
 """
 
 from __future__ import annotations
 
 import argparse
 import codecs
+import csv
+import json
+import math
 import multiprocessing
 import random
 import re
@@ -33,8 +40,13 @@ from pathlib import Path
 
 import numpy as np
 
-FORMATS = ("csv", "parquet", "mat")
+FORMATS = ("csv", "parquet", "mat", "json")
+WRITTEN = ("csv", "parquet", "mat")  # the formats write_log writes
+KINDS = (*FORMATS, "mapped")  # "mapped": a drive's own records of every format, read with MAPPED_TABLE
 OPS = ("flip", "int32", "truncate", "insert", "delete", "duplicate", "splice", "reencode", "inner")
+JSON_OPS = (*OPS, "json", "json")  # a JSON value replaced or removed, twice as often as a byte operation
+JSON_VALUES = (None, True, False, 0, -1, 65535, 65536, 1.5, -0.0, 1e308, 2**64, 10**400, math.nan, math.inf, "",
+               "1.5", " 2 ", "x", [], {}, [1, 2], {"a": 1}, [[1]], [None], [{}])
 INTERESTING_U32 = (0, 1, 2, 7, 8, 9, 14, 15, 16, 0x7F, 0x80, 0xFF, 0xFFFF, 0x10000, 0x7FFFFFFF, 0x80000000,
                    0xFFFFFFFF)
 ENCODINGS = ("utf-16", "utf-16-le", "utf-16-be", "cp1252", "latin-1", "utf-8-sig", "utf-32")
@@ -59,14 +71,14 @@ def small_log(n: int = 12):
 
 
 def write_seeds(folder: Path) -> dict[str, list[Path]]:
-    """Valid logs in every format and their variants, by format."""
+    """Valid logs in every format and their variants, by format; under "mapped", a drive's own records."""
     import pyarrow.parquet as pq
     from scipy.io import savemat
 
     from sim.logio import write_log
 
     log = small_log()
-    seeds: dict[str, list[Path]] = {fmt: [write_log(log, folder / f"seed.{fmt}")] for fmt in FORMATS}
+    seeds: dict[str, list[Path]] = {fmt: [write_log(log, folder / f"seed.{fmt}")] for fmt in WRITTEN}
     text = (folder / "seed.csv").read_text(encoding="utf-8")
     for encoding in ("utf-16", "cp1252"):
         path = folder / f"seed_{encoding.replace('-', '')}.csv"
@@ -79,7 +91,57 @@ def write_seeds(folder: Path) -> dict[str, list[Path]]:
     savemat(folder / "seed_plain.mat", variables, oned_as="column", do_compression=False)
     savemat(folder / "seed_v4.mat", dict(log.columns), oned_as="column", format="4")
     seeds["mat"] += [folder / "seed_plain.mat", folder / "seed_v4.mat"]
+    rows = [dict(zip(log.columns, row, strict=True)) for row in np.column_stack(list(log.columns.values())).tolist()]
+    (folder / "records.json").write_text(json.dumps(rows), encoding="utf-8")
+    (folder / "keyed.json").write_text(json.dumps({"units": dict(log.units), **log.meta, "records": rows},
+                                                  ensure_ascii=False), encoding="utf-8")
+    seeds["json"] = [folder / "records.json", folder / "keyed.json"]
+    seeds["mapped"] = write_mapped_seeds(folder)
     return seeds
+
+
+# A drive's own record and the map that reads it: time in ms with jitter, a product with a scalar (a .mat or JSON
+# header scalar, or a constant column), a 16-bit two's complement count, a position in degrees counted the other
+# way (a CSV column 'pos.deg', a .mat struct's member, a JSON record's nested member), and a torque-enable flag off
+# for the first samples.
+MAPPED_TABLE = {"columns": {"time": "t", "tau_cmd": "vir * gtau + pwm * 0.001", "q": "-`pos.deg`"},
+                "units": {"time": "ms", "q": "deg"}, "twos_complement": {"pwm": 16}, "resample": "5 ms",
+                "enable": "en"}
+
+
+def drive_record(n: int = 64) -> dict[str, np.ndarray]:
+    """The variables of a drive's record (``gtau`` a column of one value)."""
+    rng = np.random.default_rng(11)
+    return {"t": 5.0 * np.arange(n) + rng.uniform(-1.0, 1.0, n), "vir": rng.normal(0.0, 1.0, n),
+            "gtau": np.full(n, 0.25), "pwm": rng.choice([0.0, 5.0, 885.0, 32767.0, 32768.0, 65535.0], n),
+            "pos.deg": np.cumsum(rng.normal(0.0, 1.0, n)), "en": np.r_[np.zeros(4), np.ones(n - 4)]}
+
+
+def write_mapped_seeds(folder: Path) -> list[Path]:
+    """A drive's record as CSV, Parquet (pwm as uint16), .mat (gtau a scalar, pos a struct), a JSON list of records
+    and JSON records beside a header (gtau and units), written with plain code as a drive's software would."""
+    import pyarrow as pa
+    import pyarrow.parquet as pq
+    from scipy.io import savemat
+
+    record = drive_record()
+    paths = [folder / "drive.csv", folder / "drive.parquet", folder / "drive.mat", folder / "drive_list.json",
+             folder / "drive_keyed.json"]
+    with paths[0].open("w", newline="", encoding="utf-8") as fh:
+        writer = csv.writer(fh, lineterminator="\n")
+        writer.writerow(list(record))
+        writer.writerows(zip(*[[repr(float(v)) for v in values] for values in record.values()], strict=True))
+    pq.write_table(pa.table({**record, "pwm": pa.array(record["pwm"].astype(np.uint16))}), paths[1])
+    savemat(paths[2], {"t": record["t"], "vir": record["vir"], "gtau": 0.25, "pwm": record["pwm"].astype(np.uint16),
+                       "pos": {"deg": record["pos.deg"]}, "en": record["en"]}, oned_as="column")
+    rows = [{"t": t, "vir": vir, "gtau": 0.25, "pwm": int(pwm), "pos": {"deg": deg}, "en": bool(en)}
+            for t, vir, pwm, deg, en in zip(record["t"].tolist(), record["vir"].tolist(), record["pwm"].tolist(),
+                                            record["pos.deg"].tolist(), record["en"].tolist(), strict=True)]
+    paths[3].write_text(json.dumps(rows), encoding="utf-8")
+    header = {"gtau": 0.25, "units": {"t": "ms"}, "drive": {"model": "X1", "firmware": [1, 2]}}
+    paths[4].write_text(json.dumps({**header, "samples": [{k: v for k, v in row.items() if k != "gtau"}
+                                                          for row in rows]}), encoding="utf-8")
+    return paths
 
 
 def sidecar_copy(sidecar: Path, csv_path: Path, encoding: str) -> None:
@@ -124,7 +186,34 @@ def apply(data: bytes, op: Op, other: bytes) -> bytes:
         return reencode(data, ENCODINGS[size % len(ENCODINGS)])
     if kind == "inner":
         return mutate_compressed(data, position, size, payload)
+    if kind == "json":
+        return mutate_json(data, position, size)
     return data
+
+
+def mutate_json(data: bytes, position: int, size: int) -> bytes:
+    """JSON with one value (a member or an element, at any depth) replaced by one of :data:`JSON_VALUES` or
+    removed; data that is not JSON is returned as it is."""
+    try:
+        top = json.loads(data)
+    except (ValueError, RecursionError):
+        return data
+    slots, pending = [], [top]
+    while pending and len(slots) < 10_000:
+        value = pending.pop()
+        keys = value.keys() if isinstance(value, dict) else range(len(value)) if isinstance(value, list) else ()
+        for key in keys:
+            slots.append((value, key))
+            pending.append(value[key])
+    if not slots:
+        return data
+    container, key = slots[position % len(slots)]
+    choice = size % (len(JSON_VALUES) + 1)
+    if choice == len(JSON_VALUES):
+        del container[key]
+    else:
+        container[key] = JSON_VALUES[choice]
+    return json.dumps(top).encode()
 
 
 def reencode(data: bytes, encoding: str) -> bytes:
@@ -173,28 +262,41 @@ def compressed_elements(data: bytes) -> list[tuple[int, int]]:
     return spans
 
 
-def random_ops(rng: random.Random) -> list[Op]:
+def random_ops(rng: random.Random, ops: tuple[str, ...] = OPS) -> list[Op]:
     """One to four mutations drawn from ``rng``."""
-    return [(rng.choice(OPS), rng.randrange(1 << 20), rng.randrange(1 << 16),
+    return [(rng.choice(ops), rng.randrange(1 << 20), rng.randrange(1 << 16),
              rng.randbytes(rng.randrange(0, 9))) for _ in range(rng.randint(1, 4))]
+
+
+def ops_of(kind: str) -> tuple[str, ...]:
+    """The mutations for seeds of ``kind``: the JSON ones too where there are JSON seeds."""
+    return JSON_OPS if kind in ("json", "mapped") else OPS
 
 
 # ----------------------------------------------------------------------------------- reading in a child
 
 
-def read_outcome(path: str, joint: str = "hinge") -> tuple[str, str]:
-    """``read_log(path)`` as (kind, detail): ('RunLog', ''), ('LogError', message) or (exception name, traceback)."""
+def read_outcome(path: str, joint: str = "hinge", mapped: bool = False) -> tuple[str, str]:
+    """``read_log(path)`` (or ``read_mapped(path)`` with :data:`MAPPED_TABLE`) as (kind, detail): ('RunLog', ''),
+    ('MappedRecord', ''), ('LogError', message) or (exception name, traceback)."""
     from sim.logio import LogError, read_log
+    from sim.logmap import MappedRecord, log_map_from_dict, read_mapped
+    from sim.runlog import RunLog
 
     try:
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
-            read_log(path, joint=joint)
+            if mapped:
+                outcome = read_mapped(path, log_map_from_dict(MAPPED_TABLE), joint=joint)
+                ok = isinstance(outcome, MappedRecord) and all(isinstance(log, RunLog) for log in outcome.logs)
+            else:
+                outcome = read_log(path, joint=joint)
+                ok = isinstance(outcome, RunLog)
     except LogError as err:
         return "LogError", str(err)
     except Exception as err:  # the property under test: nothing else may escape
         return type(err).__name__, traceback.format_exc()
-    return "RunLog", ""
+    return ("MappedRecord" if mapped else "RunLog", "") if ok else ("not a log", repr(outcome)[:200])
 
 
 def _serve(conn, memory_limit: int) -> None:
@@ -225,9 +327,9 @@ class ChildReader:
         self._process.start()
         child_conn.close()
 
-    def read(self, path: Path, joint: str = "hinge") -> tuple[str, str]:
-        """The outcome of reading ``path`` in the child."""
-        self._conn.send((str(path), joint))
+    def read(self, path: Path, joint: str = "hinge", mapped: bool = False) -> tuple[str, str]:
+        """The outcome of reading ``path`` in the child (with ``read_mapped`` and MAPPED_TABLE if ``mapped``)."""
+        self._conn.send((str(path), joint, mapped))
         try:
             if self._conn.poll(self.timeout_s):
                 return self._conn.recv()
@@ -263,11 +365,13 @@ def signal_name(number: int) -> str:
 
 @dataclass
 class Case:
-    """One mutated file: which seed, whether its sidecar is the target, and the mutations."""
+    """One mutated file: which seed, whether its sidecar is the target, the mutations, and whether it is read
+    with ``read_mapped`` (and MAPPED_TABLE) rather than ``read_log``."""
 
     seed: Path
     sidecar: bool
     ops: list[Op]
+    mapped: bool = False
 
 
 def sidecar_of(path: Path) -> Path:
@@ -286,7 +390,7 @@ def run_case(case: Case, splice_from: bytes, folder: Path, reader: ChildReader) 
     mutated.write_bytes(mutate(mutated.read_bytes(), case.ops, splice_from))
     files = [p for p in (target, sidecar_of(target)) if p.exists()]
     before = {p: (p.read_bytes(), p.stat().st_mtime_ns) for p in files}
-    kind, detail = reader.read(target)
+    kind, detail = reader.read(target, mapped=case.mapped)
     if any((p.read_bytes(), p.stat().st_mtime_ns) != state for p, state in before.items()):
         return "modified", f"{[p.name for p in files]} changed by reading"
     if kind == "LogError" and not any(p.name in detail for p in files):
@@ -306,8 +410,9 @@ def kind_of(detail: str) -> str:
 
 
 def is_fine(kind: str) -> bool:
-    """Whether an outcome keeps the property: a RunLog or a LogError naming its file."""
-    return kind in ("RunLog", "LogError")
+    """Whether an outcome keeps the property: a RunLog (of read_log), a MappedRecord (of read_mapped) or a
+    LogError naming its file."""
+    return kind in ("RunLog", "MappedRecord", "LogError")
 
 
 # ------------------------------------------------------------------------------------------------ script
@@ -328,9 +433,9 @@ def main(argv: list[str] | None = None) -> int:
         every = [p for paths in seeds.values() for p in paths]
         deadline = time.monotonic() + args.seconds
         while time.monotonic() < deadline:
-            fmt = FORMATS[outcomes.total() % len(FORMATS)]
+            fmt = KINDS[outcomes.total() % len(KINDS)]
             seed = rng.choice(seeds[fmt])
-            case = Case(seed, fmt == "csv" and rng.random() < 0.2, random_ops(rng))
+            case = Case(seed, fmt == "csv" and rng.random() < 0.2, random_ops(rng, ops_of(fmt)), fmt == "mapped")
             kind, detail = run_case(case, rng.choice(every).read_bytes(), Path(cases_dir), reader)
             key = kind if is_fine(kind) else f"{kind}: {kind_of(detail)}"
             outcomes[(fmt, key)] += 1
@@ -343,7 +448,7 @@ def main(argv: list[str] | None = None) -> int:
     for (fmt, key), count in sorted(outcomes.items()):
         print(f"  {fmt:8s} {count:6d}  {key}")
     print("most frequent LogError messages (numbers and quoted text blanked):")
-    for fmt in FORMATS:
+    for fmt in KINDS:
         for (_, message), count in sorted(((k, c) for k, c in messages.items() if k[0] == fmt),
                                           key=lambda item: -item[1])[:6]:
             print(f"  {fmt:8s} {count:6d}  {message}")

@@ -310,10 +310,7 @@ def read_log(path: str | Path, *, joint: str = "hinge", max_jitter: float = 0.05
     units = joint_units(joint)
     if not max_jitter >= 0:
         raise ValueError(f"max_jitter = {max_jitter}; expected a relative step deviation >= 0")
-    reader = _READERS.get(_suffix(path))
-    if reader is None:
-        raise LogError(f"cannot read {path.name!r}: unknown suffix {path.suffix!r}; use one of "
-                       f"{', '.join(_READERS)}", path=path)
+    reader = _reader(path)
     try:
         raw = reader(path)
         _check_columns(list(raw.columns), set(raw.declared), raw.where)
@@ -806,9 +803,7 @@ def read_variables(path: str | Path, *, records: str | None = None) -> Variables
     """
     path = Path(path)
     suffix = _suffix(path)
-    if suffix not in _READERS:
-        raise LogError(f"cannot read {path.name!r}: unknown suffix {path.suffix!r}; use one of "
-                       f"{', '.join(_READERS)}", path=path)
+    _reader(path)
     try:
         if suffix == ".mat":
             values, declared, meta = _mat_variables(path)
@@ -951,7 +946,7 @@ def _check_samples(columns: dict[str, np.ndarray], *, max_jitter: float, first: 
             raise LogError(f"column {name!r} has {len(values)} samples; 'time' has {n}", column=name,
                            row=row_of(first + min(len(values), n)))
     if n < MIN_SAMPLES:
-        raise LogError(f"the log has {n} sample(s); at least MIN_SAMPLES = {MIN_SAMPLES} are needed (the sampling "
+        raise LogError(f"the log has {n} sample(s); at least {MIN_SAMPLES} are needed (the sampling "
                        f"check compares steps with the median step)")
     for name, values in columns.items():
         bad = np.flatnonzero(~np.isfinite(values)) + first
@@ -980,6 +975,19 @@ def _check_samples(columns: dict[str, np.ndarray], *, max_jitter: float, first: 
                        f"rows {_rows(irregular + first)}); a record sampled irregularly can be put on a uniform "
                        f"grid with --log resample=STEP (or resample in the rig's [log] table)",
                        column="time", row=row_of(first + i))
+
+
+def _reader(path: Path) -> Callable[[Path], _Raw]:
+    """The reader of ``path``'s format; a LogError if it is not a file or its suffix names no format."""
+    if path.is_dir():
+        raise LogError(f"{path} is a directory; give a log file ({', '.join(_READERS)})", path=path)
+    if not path.exists():
+        raise LogError(f"{path} does not exist", path=path)
+    reader = _READERS.get(_suffix(path))
+    if reader is None:
+        raise LogError(f"cannot read {path.name!r}: unknown suffix {path.suffix!r}; use one of "
+                       f"{', '.join(_READERS)}", path=path)
+    return reader
 
 
 def _suffix(path: Path) -> str:

@@ -637,13 +637,13 @@ def _enabled_spans(enabled: np.ndarray, time: np.ndarray, expression: str) -> tu
 
     if not kept:
         what = (f"; enabled only in {', '.join(rows(a, b) for a, b in runs[:5])}, each shorter than "
-                f"MIN_SPAN_SAMPLES = {MIN_SPAN_SAMPLES} samples") if runs else ""
+                f"{MIN_SPAN_SAMPLES} samples") if runs else ""
         raise LogMapError(f"enable = {expression!r}: the torque is never enabled long enough to analyse{what}")
     off = len(on) - int(on.sum())
     note = (f"enable = {expression}: {len(kept)} span(s) kept, {', '.join(rows(a, b) for a, b in kept)}; "
             f"{off} of {len(on)} samples left out where it is 0")
     if short:
-        note += (f"; {len(short)} enabled span(s) shorter than MIN_SPAN_SAMPLES = {MIN_SPAN_SAMPLES} samples left out: "
+        note += (f"; {len(short)} enabled span(s) shorter than {MIN_SPAN_SAMPLES} samples left out: "
                  f"{', '.join(rows(a, b) for a, b in short[:5])}{', ...' if len(short) > 5 else ''}")
     return kept, note
 
@@ -678,8 +678,8 @@ def _resampled(columns: dict[str, np.ndarray], log_map: LogMap, first: int) -> t
     steps = float(time[-1] - time[0]) / step * (1 + 1e-12)  # a Python float: inf rather than a warning
     if not MIN_SAMPLES - 1 <= steps <= MAX_UPSAMPLING * len(time):
         raise LogError(f"resample = {1e3 * step:.6g} ms makes {np.floor(steps) + 1:.6g} sample(s) of the record's "
-                       f"{len(time)} over {time[-1] - time[0]:.6g} s: at least MIN_SAMPLES = {MIN_SAMPLES} and at "
-                       f"most MAX_UPSAMPLING = {MAX_UPSAMPLING} times as many are accepted (its median step is "
+                       f"{len(time)} over {time[-1] - time[0]:.6g} s: at least {MIN_SAMPLES} and at "
+                       f"most {MAX_UPSAMPLING} times as many are accepted (its median step is "
                        f"{1e3 * median:.6g} ms)")
     count = int(math.floor(steps)) + 1
     grid = time[0] + step * np.arange(count)

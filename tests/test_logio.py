@@ -27,6 +27,7 @@ from sim.logio import (
     LogWarning,
     SlideRunLog,
     read_log,
+    read_variables,
     sidecar_path,
     write_log,
 )
@@ -249,7 +250,7 @@ def test_irregular_sampling_beyond_max_jitter_names_the_row_and_the_step(tmp_pat
 def test_a_log_shorter_than_the_minimum_is_refused(tmp_path):
     """Fewer than MIN_SAMPLES samples is an error that states the minimum."""
     write_rows(tmp_path / "run.csv", minimal_rows(MIN_SAMPLES - 1))
-    with pytest.raises(LogError, match=f"has {MIN_SAMPLES - 1} sample\\(s\\); at least MIN_SAMPLES = {MIN_SAMPLES}"):
+    with pytest.raises(LogError, match=f"has {MIN_SAMPLES - 1} sample\\(s\\); at least {MIN_SAMPLES} are needed"):
         read_log(tmp_path / "run.csv")
 
 
@@ -963,3 +964,11 @@ def test_a_mat_inflating_past_a_quarter_of_the_memory_is_refused(tmp_path, monke
     with pytest.raises(LogError, match=r"^run\.mat: inflating the variable at byte \d+ passes the limit of "
                                        r"2000000 bytes on a file's content"):
         read_log(path)
+
+
+@pytest.mark.parametrize("reader", [read_log, read_variables])
+def test_a_missing_file_or_a_directory_is_refused_in_one_line_naming_it(tmp_path, reader):
+    with pytest.raises(LogError, match=r"missing\.csv does not exist$"):
+        reader(tmp_path / "missing.csv")
+    with pytest.raises(LogError, match=r" is a directory; give a log file \(\.csv, \.parquet, \.mat, \.json\)$"):
+        reader(tmp_path)

@@ -47,6 +47,8 @@ from sim.protocols import PUSH_ANGLE_RAD, PUSHES, Push
 from sim.run import Controller, run_loop
 from sim.runlog import RunLog
 
+PLOT_FILES = ("admittance.png",)  # the files --plot writes
+
 
 @dataclass(frozen=True)
 class PushOutcome:
@@ -229,12 +231,12 @@ def plot_admittance(result: AdmittanceResult, directory: Path) -> Path:
         for ax in axes[:, col]:
             ax.legend(fontsize=6)
     fig.suptitle("Admittance control, free lever (paper Fig. 13)", fontsize=9)
-    return save_figure(fig, directory, "admittance.png")
+    return save_figure(fig, directory, PLOT_FILES[0])
 
 
 def main(argv: list[str] | None = None) -> None:
     parser = cli_parser(__doc__, __spec__.name)
-    add_experiment_args(parser, feedback=False)
+    add_experiment_args(parser, feedback=False, figures=PLOT_FILES)
     args = parser.parse_args(argv)
     params = load_params_arg(parser, args, checks=(make_controller,))
     print("running the slow and fast pushes (progress on stderr) ...", file=sys.stderr)

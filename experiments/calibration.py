@@ -43,6 +43,9 @@ from sensor.protocol import CALIBRATION_LEVELS_NM, CROSSTALK_LEVELS_NM
 from sim.figures import moving_mean, save_figure
 from sim.params import TestbedParams
 
+# the files --plot writes: Figs. 6, 7 and 8(b)-(f)
+PLOT_FILES = ("calibration_channels.png", "calibration_nonlinearity.png", "calibration_crosstalk_noise.png")
+CHANNELS_PNG, NONLINEARITY_PNG, CROSSTALK_PNG = PLOT_FILES
 TABLE = "calibration"
 # (figure name, table, quantity, unit, paper value); paper Tables III, IV and Sec. III-B.
 PAPER_FIGURES: tuple[tuple[str, str, str, str, float], ...] = (
@@ -243,7 +246,7 @@ def plot_channels(ev: SensorEvaluation, out_dir: Path) -> Path:
                     f"{paper_value('max_error_pct_fs'):.3f}), RMS {rms:.4f} N·m "
                     f"(paper {paper_value('rms_error_nm'):.4f})")
     fig.suptitle("Calibration experiment (paper Fig. 6; Table III's errors)", fontsize=11)
-    return save_figure(fig, out_dir, "calibration_channels.png")
+    return save_figure(fig, out_dir, CHANNELS_PNG)
 
 
 def plot_nonlinearity(ev: SensorEvaluation, out_dir: Path) -> Path:
@@ -268,7 +271,7 @@ def plot_nonlinearity(ev: SensorEvaluation, out_dir: Path) -> Path:
         _deviation_panel(a, bf.level_nm, values, PAPER_FIG7_PEAK_PCT_FS[name], title, ev.qp.fs_nm)
     fig.suptitle("Nonlinearity and hysteresis of the QP calibration on the evaluation session, preload cycles "
                  "excluded (paper Fig. 7, Table III)", fontsize=11)
-    return save_figure(fig, out_dir, "calibration_nonlinearity.png")
+    return save_figure(fig, out_dir, NONLINEARITY_PNG)
 
 
 def _magnify(ax, bf: BranchFigure, fs_nm: float) -> None:
@@ -321,7 +324,7 @@ def plot_crosstalk_noise(ev: SensorEvaluation, out_dir: Path) -> Path:
                     f"{paper_value(f'{name}_resolution_3sigma_nm')})")
     ax[1, 2].sharey(ax[0, 2])
     fig.suptitle("Crosstalk and resolution (paper Fig. 8(b)-(f), Table IV, Sec. III-B)", fontsize=11)
-    return save_figure(fig, out_dir, "calibration_crosstalk_noise.png")
+    return save_figure(fig, out_dir, CROSSTALK_PNG)
 
 
 def _moment(ev: SensorEvaluation, axis: str) -> np.ndarray:
@@ -381,7 +384,7 @@ def _joint_legend(ax, twin, ncol: int) -> None:
 def main(argv: list[str] | None = None) -> int:
     parser = cli_parser(__doc__, __spec__.name)
     parser.add_argument("--seed", type=seed_arg, default=0, help="seed of every noise draw (default 0)")
-    add_output_args(parser, "write {rows: [...]} and the calibrations")
+    add_output_args(parser, "write {rows: [...]} and the calibrations", PLOT_FILES)
     add_params_arg(parser)
     add_rerun_args(parser, "the rig records (channel voltages, MINI85 and QP-sensor torque; no mechanics, no 3D)")
     args = parser.parse_args(argv)

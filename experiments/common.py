@@ -6,8 +6,9 @@ import argparse
 import json
 import math
 import os
+import sys
 import tempfile
-from collections.abc import Callable
+from collections.abc import Callable, Mapping, Sequence
 from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
@@ -60,11 +61,12 @@ def load_params_arg(parser: argparse.ArgumentParser, args: argparse.Namespace, c
     changed that lengthen the step, and what to set in the file), one that the sensor cannot be read or
     calibrated with (``sensor.protocol.check_params``, unless ``uses_sensor`` is False) or one that a
     callable of ``checks`` (``check(params)``, raising ParameterError) refuses for this experiment becomes a
-    command-line error that names the file and the field; so does an output that cannot be written or that
-    names the --params file (``check_output_paths``).
+    command-line error that names the file and the field; so does an output that cannot be written, that
+    clashes with another or names the --params file, and a --rerun / --rerun-spawn this machine cannot serve
+    (``check_output_paths``).
     """
     checks = (*checks, check_sensor_params) if uses_sensor else tuple(checks)
-    check_output_paths(parser, args, inputs=(args.params,))
+    check_output_paths(parser, args, inputs={"--params": args.params})
     try:
         params = load_params(args.params)  # its errors name the file
     except ParameterError as exc:
@@ -94,45 +96,124 @@ def run_errors(parser: argparse.ArgumentParser):
 
 
 OUTPUT_FILE_FLAGS = ("json", "rerun", "save_rig")  # flags naming a file a run writes
+OUTPUT_DIR_FLAGS = ("plot", "out")  # flags naming a directory a run writes its files in
 RERUN_SUFFIX = ".rrd"  # the rerun viewer opens a recording by this suffix
+Inputs = Mapping[str, Path | Sequence[Path] | None]  # an input's flag (or positional name) -> its path(s)
 
 
-def check_output_paths(parser: argparse.ArgumentParser, args: argparse.Namespace, inputs=()) -> None:
+def check_output_paths(parser: argparse.ArgumentParser, args: argparse.Namespace, inputs: Inputs | None = None
+                       ) -> None:
     """Refuse, before any simulation, an output the run could not write at its end.
 
-    Checked: --json, --rerun and --save-rig name a file (not a directory, not one of ``inputs``, the paths read
-    by the run, None entries ignored; not the same file as another of them) in a directory that exists or can
-    be created, and is writable; --rerun ends in .rrd; --save-rig does not exist yet (it is never replaced);
-    --plot and --out (a directory of outputs) are directories or can be created, and are writable.
+    Checked: no output (--json, --rerun, --save-rig, each file --plot writes, as the command declared them with
+    :func:`add_output_args`) is one of ``inputs`` (flag -> the path or paths read by the run, None ignored), the
+    same file as another output or a file where another output needs a folder; --json, --rerun and --save-rig
+    name a file (not a directory) in a directory that exists or can be created, and is writable; --rerun ends in
+    .rrd; --save-rig does not exist yet (it is never replaced); --plot and --out (a directory of outputs) are
+    directories or can be created, and are writable. A usage error names both flags of a clash. Then
+    :func:`check_recording`.
     """
-    read = {Path(p).resolve() for p in inputs if p is not None}
-    files = {flag: Path(getattr(args, flag)) for flag in OUTPUT_FILE_FLAGS if getattr(args, flag, None) is not None}
-    named: dict[Path, str] = {}
-    for flag, path in files.items():
-        option = f"--{flag.replace('_', '-')}"
-        if path.resolve() in read:
-            parser.error(f"{option} {path} is an input of this run; inputs are never overwritten")
-        if path.resolve() in named:
-            parser.error(f"{named[path.resolve()]} and {option} name the same file, {path}; give each its own")
-        named[path.resolve()] = option
-        if path.is_dir():
-            example = path / ("result.json" if flag == "json" else "run.rrd" if flag == "rerun" else "rig.toml")
-            parser.error(f"{option} {path} is a directory; give a file name, e.g. {example}")
-        if flag == "rerun" and path.suffix != RERUN_SUFFIX:
-            parser.error(f"{option} {path}: a rerun recording is a {RERUN_SUFFIX} file (the viewer opens it by "
-                         f"that suffix); e.g. {path.with_suffix(RERUN_SUFFIX)}")
-        if flag == "save_rig" and path.exists():
-            parser.error(f"{option} {path} exists; choose a new file (an existing file is never replaced)")
-        _check_writable(parser, option, path.parent)
-        if path.exists() and not os.access(path, os.W_OK):
-            parser.error(f"{option} {path} exists and cannot be written")
-    for flag in ("plot", "out"):
-        directory = getattr(args, flag, None)
-        if directory is None:
-            continue
+    _check_clashes(parser, _output_files(args), _output_dirs(args), _input_paths(inputs or {}))
+    for flag in OUTPUT_FILE_FLAGS:
+        if getattr(args, flag, None) is not None:
+            _check_output_file(parser, _option(flag), Path(getattr(args, flag)))
+    for option, directory in _output_dirs(args):
         if directory.exists() and not directory.is_dir():
-            parser.error(f"--{flag} {directory} exists and is not a directory")
-        _check_writable(parser, f"--{flag}", directory)
+            parser.error(f"{option} {directory} exists and is not a directory")
+        _check_writable(parser, option, directory)
+    check_recording(parser, args)
+
+
+def _option(flag: str) -> str:
+    """'save_rig' -> '--save-rig'."""
+    return f"--{flag.replace('_', '-')}"
+
+
+def _input_paths(inputs: Inputs) -> dict[Path, tuple[str, Path]]:
+    """Each input's resolved path -> (its flag, the path as given)."""
+    read: dict[Path, tuple[str, Path]] = {}
+    for flag, paths in inputs.items():
+        for path in [paths] if isinstance(paths, (str, os.PathLike)) else paths or ():
+            read.setdefault(Path(path).resolve(), (flag, Path(path)))
+    return read
+
+
+def _output_files(args: argparse.Namespace) -> list[tuple[str, Path, str | None]]:
+    """The files a run writes, as (flag, path, name): --json, --rerun and --save-rig (name None), then each
+    file the command declared --plot writes (``args.plot_files``, :func:`add_output_args`) in that folder."""
+    files = [(_option(f), Path(getattr(args, f)), None) for f in OUTPUT_FILE_FLAGS
+             if getattr(args, f, None) is not None]
+    if getattr(args, "plot", None) is not None:
+        files += [("--plot", Path(args.plot) / name, name) for name in getattr(args, "plot_files", ())]
+    return files
+
+
+def _output_dirs(args: argparse.Namespace) -> list[tuple[str, Path]]:
+    """The folders a run writes its files in, as (flag, path): --plot, --out."""
+    return [(_option(f), Path(getattr(args, f))) for f in OUTPUT_DIR_FLAGS if getattr(args, f, None) is not None]
+
+
+def _check_clashes(parser: argparse.ArgumentParser, files: list[tuple[str, Path, str | None]],
+                   dirs: list[tuple[str, Path]], read: dict[Path, tuple[str, Path]]) -> None:
+    """parser.error, naming both flags, if an output file is an input, two outputs are one file, or an output
+    file (--json, --rerun, --save-rig) sits where another output needs a folder (the same path, or a parent)."""
+    written: dict[Path, tuple[str, Path, str | None]] = {}
+    for flag, path, name in files:
+        key = path.resolve()
+        if key in read:
+            parser.error(_input_clash(flag, path, name, *read[key]))
+        if key in written:
+            parser.error(_same_file(written[key], (flag, path, name)))
+        written[key] = (flag, path, name)
+    named = [(flag, path) for flag, path, name in files if name is None]
+    for file in named:
+        for other in dirs + named:
+            if other[0] != file[0]:
+                _check_not_inside(parser, file, other, dirs)
+
+
+def _check_not_inside(parser: argparse.ArgumentParser, file: tuple[str, Path], other: tuple[str, Path],
+                      dirs: list[tuple[str, Path]]) -> None:
+    """parser.error if the output ``other`` (flag, path) needs the output file ``file`` to be a folder."""
+    (flag, path), (other_flag, other_path) = file, other
+    if other in dirs and other_path.resolve() == path.resolve():
+        parser.error(f"{flag} {path} and {other_flag} {other_path} name the same path, {flag} a file and "
+                     f"{other_flag} a folder; give each its own")
+    if path.resolve() in other_path.resolve().parents:
+        parser.error(f"{other_flag} {other_path} is inside {flag} {path}, which is a file; give each its own path")
+
+
+def _input_clash(flag: str, path: Path, name: str | None, input_flag: str, input_path: Path) -> str:
+    """The error of an output that would overwrite an input."""
+    if name is None:
+        return (f"{flag} {path} is an input of this run ({input_flag}); inputs are never overwritten: give {flag} "
+                f"another file")
+    return (f"--plot {path.parent} would write {name} over {input_flag} {input_path}, an input of this run; inputs "
+            f"are never overwritten: give --plot another folder")
+
+
+def _same_file(first: tuple[str, Path, str | None], second: tuple[str, Path, str | None]) -> str:
+    """The error of two outputs naming one file (``first`` is --json, --rerun or --save-rig)."""
+    (flag, path, _), (other_flag, other_path, name) = first, second
+    if name is None:
+        return f"{flag} and {other_flag} name the same file, {path}; give each its own"
+    return (f"{flag} {path} is the file --plot {other_path.parent} writes {name} to; give {flag} another file or "
+            f"--plot another folder")
+
+
+def _check_output_file(parser: argparse.ArgumentParser, option: str, path: Path) -> None:
+    """parser.error unless ``path`` can be written as the file of ``option`` (--json, --rerun, --save-rig)."""
+    if path.is_dir():
+        example = path / {"--json": "result.json", "--rerun": "run.rrd"}.get(option, "rig.toml")
+        parser.error(f"{option} {path} is a directory; give a file name, e.g. {example}")
+    if option == "--rerun" and path.suffix != RERUN_SUFFIX:
+        parser.error(f"{option} {path}: a rerun recording is a {RERUN_SUFFIX} file (the viewer opens it by "
+                     f"that suffix); e.g. {path.with_suffix(RERUN_SUFFIX)}")
+    if option == "--save-rig" and path.exists():
+        parser.error(f"{option} {path} exists; choose a new file (an existing file is never replaced)")
+    _check_writable(parser, option, path.parent)
+    if path.exists() and not os.access(path, os.W_OK):
+        parser.error(f"{option} {path} exists and cannot be written")
 
 
 def _check_writable(parser: argparse.ArgumentParser, flag: str, directory: Path) -> None:
@@ -191,9 +272,10 @@ def write_outputs(args: argparse.Namespace, data: dict[str, Any], plot=None, run
 FEEDBACK_CHOICES = ("current", "sensor", "both")
 
 
-def add_experiment_args(parser: argparse.ArgumentParser, *, feedback: bool = True) -> None:
-    """The flags every closed-loop experiment takes: --feedback, --seed, --duration, --json, --plot, --params,
-    --rerun, --rerun-spawn."""
+def add_experiment_args(parser: argparse.ArgumentParser, *, feedback: bool = True,
+                        figures: Sequence[str] = ()) -> None:
+    """The flags every closed-loop experiment takes: --feedback, --seed, --duration, --json, --plot (writing
+    ``figures``, see :func:`add_output_args`), --params, --rerun, --rerun-spawn."""
     if feedback:
         parser.add_argument("--feedback", choices=FEEDBACK_CHOICES, default="both",
                             help="torque measurement the PI closes on (default both)")
@@ -202,16 +284,22 @@ def add_experiment_args(parser: argparse.ArgumentParser, *, feedback: bool = Tru
                         help=f"run every test for about S seconds instead of its full length, "
                              f"{MIN_DURATION_S:g}-{MAX_DURATION_S:g} (a quick check: the figures are then not "
                              f"comparable with the paper's)")
-    add_output_args(parser)
+    add_output_args(parser, figures=figures)
     add_params_arg(parser)
     add_rerun_args(parser)
 
 
-def add_output_args(parser: argparse.ArgumentParser, json_help: str = "write the results as JSON") -> None:
-    """--json PATH and --plot DIR (default out/): every experiment saves its figures unless told where."""
+def add_output_args(parser: argparse.ArgumentParser, json_help: str = "write the results as JSON",
+                    figures: Sequence[str] = ()) -> None:
+    """--json PATH and --plot DIR (default out/): every experiment saves its figures unless told where.
+
+    ``figures`` are the names of the files --plot writes in DIR; they become ``args.plot_files``, which
+    :func:`check_output_paths` checks against the other outputs and the inputs before the run.
+    """
     parser.add_argument("--json", type=Path, metavar="PATH", help=json_help)
     parser.add_argument("--plot", type=Path, metavar="DIR", default=Path("out"),
-                        help="save PNG figures in DIR (default out/)")
+                        help=f"write {', '.join(figures) or 'the PNG figures'} in DIR (default out/)")
+    parser.set_defaults(plot_files=tuple(figures))
     parser.add_argument("--no-plot", dest="plot", action="store_const", const=None,
                         help="save no figures")
 
@@ -234,22 +322,52 @@ def rerun_requested(args: argparse.Namespace) -> bool:
     return bool(getattr(args, "rerun", None) or getattr(args, "rerun_spawn", False))
 
 
+def check_recording(parser: argparse.ArgumentParser, args: argparse.Namespace) -> None:
+    """Refuse in one line (exit status 2, before anything runs) a --rerun or --rerun-spawn this machine cannot
+    serve: rerun disabled by the environment (``RERUN=off``), or, for the viewer, no display or no viewer
+    executable (:func:`sim.recording.viewer_unavailable`). The command line is right, so no usage text."""
+    if not rerun_requested(args):
+        return
+    from sim.recording import rerun_disabled, viewer_unavailable
+
+    disabled = rerun_disabled()
+    if disabled:
+        flag = "--rerun-spawn" if getattr(args, "rerun_spawn", False) else "--rerun"
+        parser.exit(2, f"{parser.prog}: error: {flag}: {disabled}; unset RERUN (or set RERUN=on) to record\n")
+    reason = viewer_unavailable() if getattr(args, "rerun_spawn", False) else None
+    if reason:
+        parser.exit(2, f"{parser.prog}: error: --rerun-spawn: {reason}; record to a file instead with --rerun "
+                       f"PATH.rrd and open it with `rerun PATH.rrd` where a viewer can open\n")
+
+
 def record_rerun(args: argparse.Namespace, logs, params: TestbedParams | None = None, series=None) -> None:
     """Record ``logs`` (run name -> :class:`sim.runlog.RunLog`) and their extra ``series`` (run name -> group ->
     RunLog, see :func:`sim.recording.record_series`) as --rerun / --rerun-spawn ask (nothing if neither was
-    given). Either may be a function returning it, called only when recording."""
+    given). Either may be a function returning it, called only when recording.
+
+    A viewer that does not start or take the recording (:class:`sim.recording.ViewerError`, after bounded waits)
+    is said in one line on stderr; the --rerun file is still written and the command goes on.
+    """
     if not rerun_requested(args):
         return
-    from sim.recording import record_logs
+    from sim.recording import ViewerError, record_logs
 
     if callable(logs):
         logs = logs()
     if callable(series):
         series = series()
-
-    summary = record_logs(logs, params, path=args.rerun, spawn=args.rerun_spawn, series=series)
+    try:
+        summary = record_logs(logs, params, path=args.rerun, spawn=args.rerun_spawn, series=series)
+    except ViewerError as exc:
+        kept = f"; writing {args.rerun} without it" if args.rerun else "; the run's other outputs are written"
+        print(f"--rerun-spawn: no rerun viewer: {exc}{kept}", file=sys.stderr, flush=True)
+        if not args.rerun:
+            return
+        summary = record_logs(logs, params, path=args.rerun, series=series)
     if summary.path is not None:
         print(f"rerun recording: {summary.path} ({len(summary.runs)} runs)")
+    if summary.viewer is not None:
+        print(f"rerun viewer: {len(summary.runs)} runs sent to {summary.viewer}")
 
 
 def record_log(time_s, voltages_v, *, tau_sensor_nm=None, tau_mini85_nm=None, tau_applied_nm=None,

@@ -38,7 +38,7 @@ from experiments.common import (
 )
 from sim.discrepancy.analysis import DiscrepancyResult, analyse
 from sim.discrepancy.checks import InputError
-from sim.discrepancy.report import format_result, plot_result
+from sim.discrepancy.report import PLOT_FILES, format_result, plot_result
 from sim.discrepancy.rig import Rig, RigError, load_rig, save_rig
 from sim.discrepancy.signals import AnalysisConfig
 from sim.logio import LogError, read_log
@@ -118,7 +118,7 @@ def main(argv: list[str] | None = None) -> None:
                         help="how the records map onto the run log, as in the rig's [log] table and laid over it: "
                              "columns.tau_cmd='vir * gtau', units.q=deg, resample='5 ms', enable=torque_enable, "
                              "twos_complement.pwm=16, records=samples (docs/own_logs.md)")
-    add_output_args(parser, "write the result as JSON")
+    add_output_args(parser, "write the result as JSON", PLOT_FILES)
     parser.add_argument("--save-rig", type=Path, metavar="TOML", help="write the extended rig (must not exist)")
     add_executor_args(parser, "the candidate fits", workers=2)
     parser.add_argument("--no-replay", action="store_true", help="skip the MuJoCo replay of the held-out part")
@@ -126,7 +126,7 @@ def main(argv: list[str] | None = None) -> None:
                            "residuals before and after, and the replay of the held-out part if it ran")
     args = parser.parse_args(argv)
     paths = [*args.log, *args.validate]
-    check_output_paths(parser, args, inputs=(*paths, args.rig))
+    check_output_paths(parser, args, inputs={"LOG": args.log, "--validate": args.validate, "--rig": args.rig})
     try:
         rig = load_rig(args.rig)
     except RigError as exc:

@@ -35,6 +35,8 @@ from sim.protocols import STEPS_NM
 from sim.run import run_open_loop
 from sim.runlog import RunLog
 
+PLOT_FILES = ("open_loop_step.png",)  # the files --plot writes
+
 SETTLED_FRACTION = 0.5  # the mean is taken over the second half of each step
 
 
@@ -114,7 +116,7 @@ def plot_result(result: OpenLoopStepResult, directory: Path) -> Path:
         ax.axhline(step.command_nm, color="k", lw=0.8, label="command")
         ax.set(title=f"{step.command_nm:g} N·m step", xlabel="time [s]", ylabel="torque [N·m]")
         ax.legend(fontsize=7)
-    return save_figure(fig, directory, "open_loop_step.png")
+    return save_figure(fig, directory, PLOT_FILES[0])
 
 
 def main(argv: list[str] | None = None) -> None:
@@ -123,7 +125,7 @@ def main(argv: list[str] | None = None) -> None:
                         help="torque commands of the steps [N·m] (default 0.05 0.1 0.2)")
     parser.add_argument("--duration", type=run_seconds, default=2.0, metavar="S",
                         help="seconds per step (default 2)")
-    add_output_args(parser)
+    add_output_args(parser, figures=PLOT_FILES)
     add_params_arg(parser)
     add_rerun_args(parser)
     args = parser.parse_args(argv)

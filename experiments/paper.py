@@ -40,6 +40,9 @@ from experiments.step import PAPER_REACHED_FRACTION
 from sim.characterize import measure_breakaway
 from sim.params import TestbedParams
 
+REPORT_FILE = "paper_report.md"  # the report --plot writes beside every experiment's figures
+PLOT_FILES = (*(name for experiment in EXPERIMENTS.values() for name in experiment.plot_files), REPORT_FILE)
+
 PAPER_BREAKAWAY_NM = 0.13  # paper Sec. IV
 CLOSE_RATIO = 1.25  # [-] the tighter band the table also counts (beside TARGET_RATIO)
 ONE_SIDED_SHARE = 0.8  # [-] >= 80 % of the output's impulse on one side of zero counts as one-sided
@@ -209,7 +212,7 @@ def markdown_report(result: PaperResult, directory: Path) -> str:
 
 def main(argv: list[str] | None = None) -> None:
     parser = cli_parser(__doc__, __spec__.name)
-    add_experiment_args(parser, feedback=False)
+    add_experiment_args(parser, feedback=False, figures=PLOT_FILES)
     args = parser.parse_args(argv)
     params = load_params_arg(parser, args, checks=(make_controller,))
     with run_errors(parser):
@@ -222,7 +225,7 @@ def main(argv: list[str] | None = None) -> None:
         print(f"  [{'x' if b.reproduced else ' '}] {b.claim}: {b.simulated}")
     write_outputs(args, result.to_dict())
     if args.plot:
-        report = args.plot / "paper_report.md"
+        report = args.plot / REPORT_FILE
         report.write_text(markdown_report(result, args.plot))
         print(f"report: {report}")
     record_rerun(args, result.logs, params)

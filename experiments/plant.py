@@ -45,6 +45,8 @@ from sim.motor_torque import CurrentToTorqueMap
 from sim.params import TestbedParams, bound_source, bounded_fields, source_bound
 from sim.runlog import RunLog
 
+PLOT_FILES = ("plant.png",)  # the files --plot writes
+
 PAPER_FLEXURE_MODE_ESTIMATE_HZ = 5975.0  # paper Sec. II, sqrt(k_z/J_z)/2π
 PAPER_FLEXURE_MODE_FEA_HZ = 3407.0  # paper Sec. II and Table II, SolidWorks first mode
 LOCKED_PRELOAD_NM = 1.0  # closes the backlash for the locked fixture's linearisation
@@ -199,13 +201,13 @@ def plot_card(card: PlantCard, params: TestbedParams, directory: Path) -> Path:
     ax_bl.set(xlabel="load-cell torque [N·m]", ylabel="motor angle, output side [mrad]",
               title=f"backlash reversal, locked lever\ndead band {width_mrad:.3f} mrad (parameter "
                     f"{params.backlash.width_rad * 1e3:g} mrad)")
-    return save_figure(fig, directory, "plant.png")
+    return save_figure(fig, directory, PLOT_FILES[0])
 
 
 def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(prog=f"python -m {__spec__.name}", description="Print the testbed's model card.")
     add_params_arg(parser)
-    add_output_args(parser, "write the card as JSON to this path")
+    add_output_args(parser, "write the card as JSON to this path", PLOT_FILES)
     add_rerun_args(parser, "the breakaway ramp (free fixture) and backlash reversal (locked fixture) runs the "
                            "card simulates (kept while measuring, not re-run)")
     args = parser.parse_args(argv)

@@ -26,6 +26,7 @@ import numpy as np
 from experiments.common import (
     add_executor_args,
     add_output_args,
+    check_output_paths,
     cli_parser,
     executor_from_args,
     positive_int,
@@ -37,6 +38,8 @@ from sensor.evaluation import improvement_ratio, resolution_gain
 from sim.executor import Executor, stderr_progress
 from sim.figures import save_figure
 from sim.params import TestbedParams, source_bound
+
+PLOT_FILES = ("qp_gain.png",)  # the files --plot writes
 
 DEFAULT_DRAWS = 500
 DEFAULT_SEED = 600
@@ -162,7 +165,7 @@ class QpGainResult:
         ax.set(xlabel="largest slip fraction [%]", ylabel="LS std / QP std [1]",
                title=f"QP resolution gain, {len(self.draws)} random sensor parameter sets")
         ax.legend(fontsize=8)
-        return save_figure(fig, directory, "qp_gain.png")
+        return save_figure(fig, directory, PLOT_FILES[0])
 
 
 def run_qp_gain(draws: int = DEFAULT_DRAWS, seed: int = DEFAULT_SEED, executor: Executor | None = None
@@ -178,8 +181,9 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--seed", type=seed_arg, default=DEFAULT_SEED,
                         help=f"draw k uses the generator seed SEED + k (default {DEFAULT_SEED})")
     add_executor_args(parser, "the draws")
-    add_output_args(parser, "write the summary and every draw")
+    add_output_args(parser, "write the summary and every draw", PLOT_FILES)
     args = parser.parse_args(argv)
+    check_output_paths(parser, args)
     executor = executor_from_args(parser, args, progress=stderr_progress("draws"))
     print(f"{args.draws} random sensor parameter sets, on {executor.where} ...", file=sys.stderr, flush=True)
     start = time.perf_counter()

@@ -11,6 +11,7 @@ the alternative readings of the paper's definitions, which also carry ``reading`
 
 from __future__ import annotations
 
+import sys
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
@@ -57,6 +58,11 @@ class Experiment:
     runner: Callable[..., Result]
     shortens: bool = True
     controlled: bool = True
+
+    @property
+    def plot_files(self) -> tuple[str, ...]:
+        """The files its ``plot(directory)`` writes: the ``PLOT_FILES`` of the runner's module."""
+        return sys.modules[self.runner.__module__].PLOT_FILES
 
     def run(self, params: TestbedParams | None = None, seed: int = 0, duration_s: float | None = None,
             controller=None, progress: bool = False) -> Result:

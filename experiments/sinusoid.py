@@ -57,6 +57,8 @@ from sim.protocols import WAVEFORMS, Waveform
 from sim.run import Controller, run_open_loop
 from sim.runlog import RunLog
 
+PLOT_FILES = ("sinusoid.png",)  # the files --plot writes
+
 TEST_DURATION_S = 10.0  # [s] two periods of the 0.2 Hz sines, ten of the square wave (assumed)
 WARMUP_PERIODS = 1  # [-] reference periods run before the evaluated window
 PRECONDITION_NM = 0.5  # [N·m] the torque of the preceding test (the 0.5 N·m regulation of Sec. IV-A)
@@ -198,12 +200,12 @@ def plot_sinusoid(result: SinusoidResult, directory: Path) -> Path:
     fig.suptitle("Sine and square tracking, locked lever (paper Fig. 12, Table VII). Before each run: an open-loop "
                  f"{PRECONDITION_NM:g} N·m push and release, {precondition_s:g} s, not shown. Peak error = "
                  "|max y − max r| (controllers.tracking)", fontsize=9)
-    return save_figure(fig, directory, "sinusoid.png")
+    return save_figure(fig, directory, PLOT_FILES[0])
 
 
 def main(argv: list[str] | None = None) -> None:
     parser = cli_parser(__doc__, __spec__.name)
-    add_experiment_args(parser)
+    add_experiment_args(parser, figures=PLOT_FILES)
     args = parser.parse_args(argv)
     params = load_params_arg(parser, args)
     print("running the sine and square tests (progress on stderr) ...", file=sys.stderr)

@@ -61,6 +61,8 @@ from sim.protocols import DISTURBANCE, PRE_STEP_S, STEPS_NM
 from sim.run import Controller
 from sim.runlog import RunLog
 
+PLOT_FILES = ("step.png",)  # the files --plot writes
+
 # Paper Table VI: RMS error [N·m] against the load-cell torque.
 PAPER_STEP_RMS_NM = {("current", 0.05): 0.0329, ("current", 0.1): 0.0566, ("current", 0.2): 0.0685,
                      ("sensor", 0.05): 0.0026, ("sensor", 0.1): 0.0026, ("sensor", 0.2): 0.0025}
@@ -306,12 +308,12 @@ def plot_step(result: StepResult, directory: Path) -> Path:
         ax.set_visible(False)
     fig.suptitle("Step and disturbance tests, locked lever (paper Fig. 11, Table VI)", fontsize=11)
     fig.tight_layout()
-    return save_figure(fig, directory, "step.png")
+    return save_figure(fig, directory, PLOT_FILES[0])
 
 
 def main(argv: list[str] | None = None) -> None:
     parser = cli_parser(__doc__, __spec__.name)
-    add_experiment_args(parser)
+    add_experiment_args(parser, figures=PLOT_FILES)
     args = parser.parse_args(argv)
     params = load_params_arg(parser, args)
     print("running the step and disturbance tests (progress on stderr) ...", file=sys.stderr)

@@ -47,6 +47,7 @@ from sensor.readout import factory_calibration
 from sim.figures import moving_mean, save_figure
 from sim.params import TestbedParams
 
+PLOT_FILES = ("thermal_drift.png",)  # the files --plot writes
 DRIFT_TEST_LOADS_NM = (0.0, 10.0)  # paper Table V
 PAPER_FIGURES = (
     ("drift_rms_0nm_uncompensated", "V", "1-h drift RMS at 0 N·m, uncompensated", "N·m", 0.0123),
@@ -181,7 +182,7 @@ def plot_thermal(result: ThermalExperiment, reference_c: float, out_dir: Path) -
         _plot_drift_test(torque_ax, fig.add_subplot(grid[1, col], sharex=torque_ax), result, load, reference_c,
                          letter)
     fig.suptitle("Temperature compensation (paper Fig. 9(b)-(d), Table V)", fontsize=11)
-    return [save_figure(fig, out_dir, "thermal_drift.png")]
+    return [save_figure(fig, out_dir, PLOT_FILES[0])]
 
 
 def _plot_chamber(ax, result: ThermalExperiment) -> None:
@@ -238,7 +239,7 @@ def _plot_drift_test(ax, temp_ax, result: ThermalExperiment, load: float, refere
 def main(argv: list[str] | None = None) -> int:
     parser = cli_parser(__doc__, __spec__.name)
     parser.add_argument("--seed", type=seed_arg, default=0, help="seed of every noise draw (default 0)")
-    add_output_args(parser, "write {rows: [...]} and the drift fits")
+    add_output_args(parser, "write {rows: [...]} and the drift fits", PLOT_FILES)
     add_params_arg(parser)
     add_rerun_args(parser, "the chamber and drift records (voltages, torques, TMP117; no mechanics, no 3D)")
     args = parser.parse_args(argv)

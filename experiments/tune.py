@@ -77,6 +77,8 @@ from sim.motor_torque import CurrentToTorqueMap
 from sim.params import TestbedParams
 from sim.runlog import RunLog
 
+PLOT_FILES = ("tune.png",)  # the files --plot writes
+
 DEFAULT_DURATION_S = 3.0  # [s] per task episode
 DEFAULT_MAX_EVALUATIONS = 40
 DEFAULT_GAIN_MARGIN = 2.0  # [-] loop-gain factor the tuned gains must tolerate (6 dB; see the module docstring)
@@ -393,7 +395,7 @@ def plot_tune(result: TuneResult, directory: Path) -> Path:
             ax.plot(ep.time_s, ep.output_nm, color=colour, lw=0.8, label=f"{label} gains (RMS {ep.rms_nm:.4g})")
         ax.set(title=name, xlabel="time [s]", ylabel="load-cell torque [N·m]")
         ax.legend(fontsize=6)
-    return save_figure(fig, directory, "tune.png")
+    return save_figure(fig, directory, PLOT_FILES[0])
 
 
 def main(argv: list[str] | None = None) -> None:
@@ -407,7 +409,7 @@ def main(argv: list[str] | None = None) -> None:
                         help=f"the tuned gains x M must still track every task as well as the paper's "
                              f"(default {DEFAULT_GAIN_MARGIN:g} = 6 dB; 1 switches the check off)")
     add_executor_args(parser, "each evaluation's episodes")
-    add_experiment_args(parser, feedback=False)
+    add_experiment_args(parser, feedback=False, figures=PLOT_FILES)
     args = parser.parse_args(argv)
     params = load_params_arg(parser, args)
     if not (math.isfinite(args.gain_margin) and args.gain_margin >= 1):

@@ -48,6 +48,8 @@ from sim.executor import Executor, stderr_progress
 from sim.figures import save_figure
 from sim.params import TestbedParams, field_range
 
+PLOT_FILES = ("units_spread.png",)  # the files --plot writes
+
 DEFAULT_UNITS = 24
 PERCENTILE_DEFINITION = ("the paper's percentile among the units: 100 x (units whose figure is below the paper's "
                          "+ half of those equal to it) / units with the figure")
@@ -292,7 +294,7 @@ def plot_spreads(result: UnitsResult, directory: Path) -> Path:
            title=f"{len(result.runs)} sensor units (unit_seed), noise seed {result.seed}\n"
                  f"percentile: units below the paper's value, ties counted half")
     ax.legend(fontsize=8, loc="upper left", bbox_to_anchor=(1.01, 1.0))
-    return save_figure(fig, directory, "units_spread.png")
+    return save_figure(fig, directory, PLOT_FILES[0])
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -302,7 +304,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--seed", type=seed_arg, default=0, help="seed of every noise draw, for every unit "
                                                                  "(default 0)")
     add_executor_args(parser, "the units")
-    add_output_args(parser, "write the spreads, every unit's values, the failures and rejected drift fits")
+    add_output_args(parser, "write the spreads, every unit's values, the failures and rejected drift fits",
+                    PLOT_FILES)
     add_params_arg(parser)
     args = parser.parse_args(argv)
     params = load_params_arg(parser, args)

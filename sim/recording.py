@@ -28,12 +28,26 @@ at every tick, all in bulk with ``rerun.send_columns``. Angles are drawn to scal
 load. A run's extra series are :class:`sim.runlog.RunLog` s too (one per group, any columns with units,
 on their own time column); the blueprint gives each group a time-series view in that run's tab, and leaves
 out the views a run has no data for (no 3D view for a record without mechanics).
+
+A spawned viewer (``spawn=True``) is one already listening on the port, else the one shipped with the installed
+rerun-sdk (:func:`viewer_executable`), started detached with its output kept off the terminal. Every wait on it is
+bounded; a viewer that cannot open (no display, no executable, one that exits as it starts or does not take the
+recording) raises :class:`ViewerError`, and rerun disabled by the environment (``RERUN=off``) raises
+:class:`RecordingError`, each with the reason in one line.
 """
 
 from __future__ import annotations
 
+import importlib.util
 import math
+import os
 import re
+import shutil
+import socket
+import subprocess
+import sys
+import tempfile
+import time
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -61,6 +75,23 @@ FIXED_VIEWS = (  # group, view title, row share, log columns whose presence give
     ("temperature", "temperature [°C]", 1, ("temperature",)))
 FIXED_GROUPS = ("testbed",) + tuple(group for group, *_ in FIXED_VIEWS)  # entity groups of the fixed layout
 
+VIEWER_PORT = 9876  # the viewer's gRPC port, rerun's default (a viewer already listening there is reused)
+VIEWER_START_TIMEOUT_S = 10.0  # [s] longest wait for a started viewer to listen on its port
+VIEWER_SETTLE_S = 0.5  # [s] a viewer that cannot open its window exits within this of starting to listen
+VIEWER_FLUSH_TIMEOUT_S = 120.0  # [s] longest wait for the viewer to take a recording (~100 MB: a few seconds)
+DISPLAY_VARIABLES = ("DISPLAY", "WAYLAND_DISPLAY", "WAYLAND_SOCKET")  # one is needed for a window on Linux
+RERUN_OFF = ("0", "false", "off")  # values of the RERUN variable that disable the rerun SDK (any case)
+HTTP2_PREFACE = b"PRI * HTTP/2.0\r\n\r\nSM\r\n\r\n"  # a client's first bytes (RFC 9113, 3.4)
+HTTP2_SETTINGS = b"\x04"  # the type of a server's first frame, its SETTINGS (RFC 9113, 6.5)
+
+
+class RecordingError(RuntimeError):
+    """Nothing can be recorded where asked; the message says why, in one line."""
+
+
+class ViewerError(RecordingError):
+    """No rerun viewer could be opened or fed; the message says why, in one line."""
+
 
 @dataclass(frozen=True)
 class RecordingSummary:
@@ -76,12 +107,15 @@ class RecordingSummary:
         Entity name of each run -> number of 3D pose samples.
     series : dict of str to dict of str to int
         Entity name of each run with extra series -> group entity name -> its number of samples.
+    viewer : str or None
+        The address of the viewer the runs were sent to (None when not spawned).
     """
 
     path: Path | None
     runs: dict[str, int]
     pose_samples: dict[str, int]
     series: dict[str, dict[str, int]] = field(default_factory=dict)
+    viewer: str | None = None
 
 
 def entity_name(name: str) -> str:
@@ -273,7 +307,8 @@ def blueprint(names: list[str], series: dict[str, dict[str, RunLog]] | None = No
 
 def record_logs(logs: dict[str, RunLog], params: TestbedParams | None = None, *, path: str | Path | None = None,
                 spawn: bool = False, application_id: str = "torquebed",
-                series: dict[str, dict[str, RunLog]] | None = None, **kwargs) -> RecordingSummary:
+                series: dict[str, dict[str, RunLog]] | None = None, port: int = VIEWER_PORT,
+                **kwargs) -> RecordingSummary:
     """Record runs to an .rrd file (``path``) and/or a spawned viewer (``spawn``).
 
     Parameters
@@ -285,21 +320,34 @@ def record_logs(logs: dict[str, RunLog], params: TestbedParams | None = None, *,
     path : str or Path, optional
         Write the recording here (parent folders created).
     spawn : bool
-        Start the rerun viewer and stream to it.
+        Stream to a rerun viewer on ``port`` (:func:`open_viewer`: the one listening there or one started).
     series : dict of str to dict of str to RunLog, optional
         Extra series of some runs: run name (a key of ``logs``) -> group -> the group's series (see
         :func:`record_series`).
+    port : int
+        The viewer's gRPC port.
     **kwargs
         ``pose_rate_hz`` and ``angle_exaggeration`` of :func:`record_run`.
+
+    Raises
+    ------
+    RecordingError
+        When rerun is disabled by the environment (:func:`rerun_disabled`: nothing would be recorded).
+    ViewerError
+        With ``spawn``, when no viewer opens (before anything is recorded) or it does not take the recording
+        within ``VIEWER_FLUSH_TIMEOUT_S``.
     """
     if path is None and not spawn:
         raise ValueError("record_logs needs path (an .rrd file) or spawn=True")
+    if rerun_disabled():
+        raise RecordingError(f"{rerun_disabled()}: nothing would be recorded; unset RERUN to record")
     names = list(logs)
     slugs = [entity_name(n) for n in names]
     if len(set(slugs)) != len(slugs):
         raise ValueError(f"run names must differ as entity paths: {slugs}")
     series = series or {}
     _check_series(names, series)
+    viewer = open_viewer(port) if spawn else None
     rec = rr.RecordingStream(application_id, recording_id=f"{application_id}-{'-'.join(slugs)}"[:200])
     bp = blueprint(names, series, logs)
     sinks = []
@@ -307,18 +355,19 @@ def record_logs(logs: dict[str, RunLog], params: TestbedParams | None = None, *,
         path = Path(path)
         path.parent.mkdir(parents=True, exist_ok=True)
         sinks.append(rr.FileSink(str(path)))
-    if spawn:
-        rr.spawn(connect=False)
-        sinks.append(rr.GrpcSink())
+    if viewer is not None:
+        sinks.append(rr.GrpcSink(viewer))
     rec.set_sinks(*sinks, default_blueprint=bp)
     runs, poses = {}, {}
     for name, slug in zip(names, slugs, strict=True):
         runs[slug], poses[slug] = record_run(rec, name, logs[name], params, **kwargs)
     extra = {entity_name(name): {entity_name(group): record_series(rec, name, group, log)
                                  for group, log in groups.items()} for name, groups in series.items()}
-    rec.flush()
-    rec.disconnect()
-    return RecordingSummary(path, runs, poses, extra)
+    try:
+        _flush(rec, viewer)
+    finally:
+        rec.disconnect()
+    return RecordingSummary(path, runs, poses, extra, viewer)
 
 
 def _check_series(names: list[str], series: dict[str, dict[str, RunLog]]) -> None:
@@ -331,3 +380,105 @@ def _check_series(names: list[str], series: dict[str, dict[str, RunLog]]) -> Non
         slugs = [entity_name(g) for g in groups]
         if len(set(slugs)) != len(slugs):
             raise ValueError(f"series groups of run {name!r} must differ as entity paths: {slugs}")
+
+
+# ---------------------------------------------------------------- the viewer
+def rerun_disabled() -> str | None:
+    """Why the rerun SDK records nothing in this environment (the ``RERUN`` variable set to off, 0 or false, as
+    the SDK reads it), in a line; None when it records."""
+    value = os.environ.get("RERUN", "")
+    return f"rerun is disabled by the environment (RERUN={value})" if value.lower() in RERUN_OFF else None
+
+
+def viewer_executable() -> str | None:
+    """The rerun viewer to start: ``$RERUN_CLI_PATH`` (as the ``rerun`` script reads it), else the binary of the
+    rerun_cli package (installed with rerun-sdk, so of the SDK's version), else ``rerun`` on PATH; None if none."""
+    if os.environ.get("RERUN_CLI_PATH"):
+        return os.environ["RERUN_CLI_PATH"]
+    spec = importlib.util.find_spec("rerun_cli")
+    if spec is not None and spec.origin is not None:
+        binary = Path(spec.origin).parent / ("rerun.exe" if sys.platform == "win32" else "rerun")
+        if binary.is_file():
+            return str(binary)
+    return shutil.which("rerun")
+
+
+def viewer_listening(port: int = VIEWER_PORT) -> bool:
+    """Whether a viewer answers on ``port`` of this machine: a server that replies to the HTTP/2 preface (gRPC's
+    transport) with its settings within a second. A listener that does not (another program, a stopped viewer)
+    is not taken for one: the rerun SDK would wait on it forever when it disconnects."""
+    try:
+        with socket.create_connection(("127.0.0.1", port), timeout=1.0) as connection:
+            connection.sendall(HTTP2_PREFACE)
+            return connection.recv(9)[3:4] == HTTP2_SETTINGS  # the type byte of the server's first frame header
+    except OSError:
+        return False
+
+
+def viewer_unavailable(port: int = VIEWER_PORT) -> str | None:
+    """Why no rerun viewer can open here, in a line (rerun disabled by the environment; else, unless a viewer
+    already listens on ``port``: no display on Linux, no viewer executable); None when one can."""
+    disabled = rerun_disabled()
+    if disabled or viewer_listening(port):
+        return disabled
+    if sys.platform not in ("darwin", "win32") and not any(os.environ.get(v) for v in DISPLAY_VARIABLES):
+        return "no display to open the rerun viewer on (DISPLAY and WAYLAND_DISPLAY are unset)"
+    if viewer_executable() is None:
+        return "no rerun viewer executable (neither rerun-sdk's rerun_cli package nor `rerun` on PATH)"
+    return None
+
+
+def open_viewer(port: int = VIEWER_PORT) -> str:
+    """The gRPC address of a rerun viewer on ``port``: the one listening there, else one started detached (its
+    output kept in a temporary file, off the terminal). Waits at most ``VIEWER_START_TIMEOUT_S`` +
+    ``VIEWER_SETTLE_S``; raises :class:`ViewerError` (the reason in a line) if none can open or it exits."""
+    reason = viewer_unavailable(port)
+    if reason:
+        raise ViewerError(reason)
+    if not viewer_listening(port):
+        with tempfile.TemporaryFile() as output:  # the viewer keeps writing to it once closed here
+            process = subprocess.Popen([viewer_executable(), f"--port={port}", "--expect-data-soon"],
+                                       stdin=subprocess.DEVNULL, stdout=output, stderr=output,
+                                       start_new_session=True, env={**os.environ, "RERUN_APP_ONLY": "true"})
+            _wait_listening(process, port, output)
+    return f"rerun+http://127.0.0.1:{port}/proxy"
+
+
+def _wait_listening(process: subprocess.Popen, port: int, output) -> None:
+    """Return once the started viewer listens on ``port`` and is still running ``VIEWER_SETTLE_S`` later; raise
+    :class:`ViewerError` if it exits, or (stopping it) if it does not listen within ``VIEWER_START_TIMEOUT_S``."""
+    deadline = time.monotonic() + VIEWER_START_TIMEOUT_S
+    while not viewer_listening(port):
+        if process.poll() is not None:
+            raise ViewerError(_exit_reason(process, output))
+        if time.monotonic() > deadline:
+            process.kill()
+            process.wait()
+            raise ViewerError(f"the rerun viewer did not listen on port {port} within {VIEWER_START_TIMEOUT_S:g} "
+                              f"s; it was stopped")
+        time.sleep(0.1)
+    time.sleep(VIEWER_SETTLE_S)
+    if process.poll() is not None:
+        raise ViewerError(_exit_reason(process, output))
+
+
+def _exit_reason(process: subprocess.Popen, output) -> str:
+    """One line on a viewer that exited: its status and the last error line of its output."""
+    output.seek(0)
+    lines = [re.sub(r"\x1b\[[0-9;]*m| at \S+\.rs:\d+", "", line).strip()
+             for line in output.read().decode(errors="replace").splitlines()]
+    errors = [line for line in lines if re.search(r"error|panicked", line, re.IGNORECASE)] or lines or [""]
+    said = f": {errors[-1][:300]}" if errors[-1] else ""
+    return f"the rerun viewer exited as it started (exit status {process.returncode}){said}"
+
+
+def _flush(rec: rr.RecordingStream, viewer: str | None) -> None:
+    """Flush ``rec``'s sinks; with a viewer, within ``VIEWER_FLUSH_TIMEOUT_S`` (else :class:`ViewerError`)."""
+    if viewer is None:
+        rec.flush()
+        return
+    try:
+        rec.flush(timeout_sec=VIEWER_FLUSH_TIMEOUT_S)
+    except RuntimeError as exc:
+        raise ViewerError(f"the viewer at {viewer} did not take the recording within {VIEWER_FLUSH_TIMEOUT_S:g} s "
+                          f"({' '.join(str(exc).split())})") from None

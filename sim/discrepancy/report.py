@@ -11,6 +11,10 @@ from sim.discrepancy.analysis import DiscrepancyResult
 from sim.discrepancy.effects import EFFECTS
 from sim.figures import save_figure
 
+# the figures plot_result writes (the replay's only when the replay ran)
+PLOT_FILES = ("discrepancy_residuals.png", "discrepancy_autocorrelation.png", "discrepancy_signatures.png",
+              "discrepancy_replay.png")
+RESIDUALS_PNG, AUTOCORRELATION_PNG, SIGNATURES_PNG, REPLAY_PNG = PLOT_FILES
 SIGNATURES_SHOWN = 6  # strongest signatures listed in the text report
 Y_PERCENTILES = (0.5, 99.5)  # residual figures: the y-range holds these percentiles of the samples that count
 Y_MARGIN = 0.15  # ... plus this share of the range each way
@@ -207,7 +211,7 @@ def plot_result(result: DiscrepancyResult, directory: Path) -> list[Path]:
         ax.legend(loc="upper right", fontsize=7)
     axes[-1, 0].set_xlabel("time [s]")
     fig.suptitle("Residuals (measured - model) where they count (filter guards left out)")
-    paths.append(save_figure(fig, directory, "discrepancy_residuals.png"))
+    paths.append(save_figure(fig, directory, RESIDUALS_PNG))
 
     fig, ax = plt.subplots(figsize=(6, 3.5))
     step = float(result.time[1] - result.time[0]) if len(result.time) > 1 else 1.0
@@ -225,13 +229,13 @@ def plot_result(result: DiscrepancyResult, directory: Path) -> list[Path]:
     ax.set_title("Baseline residual autocorrelation (held out)")
     if channels:
         ax.legend()
-    paths.append(save_figure(fig, directory, "discrepancy_autocorrelation.png"))
+    paths.append(save_figure(fig, directory, AUTOCORRELATION_PNG))
 
     sigs = result.baseline["signatures"][:10]
     fig, ax = plt.subplots(figsize=(7, 3.5))
     ax.barh([f"{s['signature']} ({s['channel']})" for s in sigs][::-1], [s["correlation"] for s in sigs][::-1])
     ax.set_xlabel("correlation with the baseline residual [1]")
-    paths.append(save_figure(fig, directory, "discrepancy_signatures.png"))
+    paths.append(save_figure(fig, directory, SIGNATURES_PNG))
 
     r = result.replay
     if r and not r.get("skipped"):
@@ -243,5 +247,5 @@ def plot_result(result: DiscrepancyResult, directory: Path) -> list[Path]:
         ax.set_ylabel(f"{r['signal']} [{r['unit']}]")
         ax.set_title(f"MuJoCo replay, windows of {r['window_s']} s from the measured state")
         ax.legend(markerscale=8)
-        paths.append(save_figure(fig, directory, "discrepancy_replay.png"))
+        paths.append(save_figure(fig, directory, REPLAY_PNG))
     return paths

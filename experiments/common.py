@@ -11,7 +11,7 @@ import tempfile
 from collections.abc import Callable, Mapping, Sequence
 from contextlib import contextmanager
 from pathlib import Path
-from typing import Any
+from typing import Any, NoReturn
 
 import numpy as np
 
@@ -27,6 +27,12 @@ def cli_parser(doc: str, module: str) -> argparse.ArgumentParser:
     """The parser of ``python -m module``: usage under that name, the module docstring's first paragraph as its
     description (whole sentences, not its first line)."""
     return argparse.ArgumentParser(prog=f"python -m {module}", description=" ".join(doc.split("\n\n")[0].split()))
+
+
+def data_error(parser: argparse.ArgumentParser, message: str) -> NoReturn:
+    """Exit 2 with ``message`` in one line, without the usage text: an input file's or a run's error, not a
+    mistyped command line (those are ``parser.error``)."""
+    parser.exit(2, f"{parser.prog}: error: {message}\n")
 
 
 def add_executor_args(parser: argparse.ArgumentParser, what: str, workers: int = 1) -> None:
@@ -70,7 +76,7 @@ def load_params_arg(parser: argparse.ArgumentParser, args: argparse.Namespace, c
     try:
         params = load_params(args.params)  # its errors name the file
     except ParameterError as exc:
-        parser.error(str(exc))
+        data_error(parser, str(exc))
     try:
         check_time_constants(params, FIXTURES, source=args.params)
         for fixture in FIXTURES:
@@ -78,7 +84,7 @@ def load_params_arg(parser: argparse.ArgumentParser, args: argparse.Namespace, c
         for check in checks:
             check(params)
     except ParameterError as exc:
-        parser.error(f"{args.params}: {exc}" if args.params is not None else str(exc))
+        data_error(parser, f"{args.params}: {exc}" if args.params is not None else str(exc))
     return params
 
 
@@ -89,7 +95,7 @@ def run_errors(parser: argparse.ArgumentParser):
     try:
         yield
     except InfeasibleCalibrationError as exc:
-        parser.error(f"{str(exc).rstrip('.')}. The sensor's parameters leave the QP calibration no solution "
+        data_error(parser, f"{str(exc).rstrip('.')}. The sensor's parameters leave the QP calibration no solution "
                      f"within the paper's error bound: look at photoreflector.noise_min_v / noise_max_v, "
                      f"adc_bits, bandwidth_hz (its lag on the loading ramps), the slip fractions (hysteresis) and "
                      f"the optical curvature fractions")

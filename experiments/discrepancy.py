@@ -32,6 +32,7 @@ from experiments.common import (
     add_rerun_args,
     check_output_paths,
     cli_parser,
+    data_error,
     record_rerun,
     software_versions,
     write_outputs,
@@ -130,9 +131,9 @@ def main(argv: list[str] | None = None) -> None:
     try:
         rig = load_rig(args.rig)
     except RigError as exc:
-        parser.error(str(exc))
+        data_error(parser, str(exc))
     except OSError as exc:  # a directory, no permission
-        parser.error(f"rig file {args.rig} cannot be read: {exc.strerror or exc}")
+        data_error(parser, f"rig file {args.rig} cannot be read: {exc.strerror or exc}")
     if args.log_options:
         try:
             table = with_options(rig.log_map.to_dict() if rig.log_map else {}, args.log_options)
@@ -148,10 +149,10 @@ def main(argv: list[str] | None = None) -> None:
                 record = read_mapped(path, rig.log_map, joint=rig.joint, max_jitter=args.max_jitter)
                 found, found_names = list(record.logs), mapped_names(name, len(record.logs))
                 print("\n".join(f"{name}: {note}" for note in record.notes))
-        except (LogError, FileNotFoundError) as exc:
-            parser.error(f"{path}: {exc}")
+        except LogError as exc:  # its message names the file
+            data_error(parser, str(exc))
         except OSError as exc:
-            parser.error(f"{path} cannot be read: {exc.strerror or exc}")
+            data_error(parser, f"{path} cannot be read: {exc.strerror or exc}")
         logs += found
         names += found_names
         roles += ["estimation" if i < len(args.log) else "validation"] * len(found)
@@ -163,9 +164,9 @@ def main(argv: list[str] | None = None) -> None:
                          replay=not args.no_replay, also=tuple(logs[1:n]), validation=tuple(logs[n:]),
                          names=tuple(names), unwrap=args.unwrap)
     except InputError as exc:
-        parser.error(f"{args.log[0] if n == 1 and not args.validate else 'the logs'}: {exc}")
+        data_error(parser, f"{args.log[0] if n == 1 and not args.validate else 'the logs'}: {exc}")
     except (RigError, ValueError) as exc:
-        parser.error(str(exc))
+        data_error(parser, str(exc))
     print(format_result(result))
     write_outputs(args, result.to_dict(), lambda directory: plot_result(result, directory),
                   run=_run_entries(args, sources, names, roles, logs, config))

@@ -4,6 +4,8 @@ against the inputs before anything runs: a clash is one usage error naming both 
 import argparse
 import importlib
 import re
+import subprocess
+import sys
 from pathlib import Path
 
 import pytest
@@ -153,3 +155,25 @@ def test_every_figure_is_saved_under_a_declared_name():
     sources = [*ROOT.glob("experiments/*.py"), *ROOT.glob("sim/**/*.py")]
     literal = re.compile(r"save_figure\([^)]*[\"'][^\"']+\.(png|pdf|svg)[\"']")
     assert not [path.name for path in sources if literal.search(path.read_text())]
+
+
+@pytest.mark.parametrize(("argv", "named"), [
+    (["experiments.discrepancy", "{tmp}/missing.csv", "--rig", "{tmp}/rig.toml"], "missing.csv"),
+    (["experiments.discrepancy", "{tmp}", "--rig", "{tmp}/rig.toml"], "is a directory"),
+    (["experiments.discrepancy", "{tmp}/short.csv", "--rig", "{tmp}/rig.toml"], "short.csv"),
+    (["experiments.discrepancy", "{tmp}/short.csv", "--rig", "{tmp}/typo.toml"], "typo.toml"),
+    (["experiments.step", "--params", "{tmp}/typo_params.toml", "--duration", "0.05", "--no-plot"],
+     "typo_params.toml"),
+])
+def test_a_file_or_data_error_is_one_line_naming_the_file_once_without_the_usage(argv, named, tmp_path):
+    """Only a mistyped command line gets the usage text; an input's error is the command's one line."""
+    (tmp_path / "rig.toml").write_text('model = "rigid-joint"\njoint = "hinge"\ninertia_kgm2 = 1\neffort_gain = 1\n')
+    (tmp_path / "typo.toml").write_text('model = "rigid-joint"\njiont = "hinge"\n')
+    (tmp_path / "typo_params.toml").write_text("[friction]\nbreakaway_torqe_nm = 0.1\n")
+    (tmp_path / "short.csv").write_text("time,tau_cmd,q\n0,1,0\n")
+    args = [a.format(tmp=tmp_path) for a in argv]
+    done = subprocess.run([sys.executable, "-m", *args], capture_output=True, text=True, timeout=120, cwd=ROOT)
+    lines = done.stderr.strip().splitlines()
+    assert done.returncode == 2 and len(lines) == 1, done.stderr
+    assert lines[0].startswith(f"python -m {args[0]}: error: ") and "usage" not in done.stderr
+    assert lines[0].count(named) == 1, lines[0]

@@ -509,8 +509,10 @@ def format_rows(title: str, rows: list[dict[str, Any]], band: float | None = TAR
     alternatives = [r for r in rows if not is_primary(r)]
     text = _table(title, primary, band)
     if alternatives:
-        text += "\n\n" + _table("Alternative readings of the paper's definitions (beside the table, never counted "
-                                 "in it; the paper value converted to the reading)", alternatives, band)
+        text += "\n\n" + _table("Alternative readings of the paper's definitions: where the paper does not say how "
+                                 "a figure was taken (which window, which samples), the same figure taken another "
+                                 "way, to show how much the definition matters; not the result above and never "
+                                 "counted in it", alternatives, band)
     return text
 
 

@@ -74,6 +74,7 @@ PAPER_DISTURBANCE_LOST_NM = {"current": 0.3, "sensor": 2.0}
 
 STEP_HOLD_S = 5.0  # [s] step held
 SETTLE_S = 1.0  # [s] ~10 time constants of the PI's integral action, (1 + Kp)/Ki = 93 ms
+START_UP_S = 0.2  # [s] the disturbance test's start, where the regulated torque is taken from rest (figure note)
 REGULATION_LOST_NM = 0.25  # [N·m] half the regulated torque: the load cell has clearly left 0.5 N·m
 TRANSIENT_REASON = ("The paper computes the RMSE of each step record (Fig. 11, Table VI) without naming a window, so "
                     "the whole record from the step on, the transient included, is a reading too.")
@@ -297,6 +298,12 @@ def plot_step(result: StepResult, directory: Path) -> Path:
                 ax.axvspan(*window, color=colours[kind], alpha=0.1, lw=0, label=f"evaluated, {kind} fb")
         ref = next(c for c in result.cases if c.name == name).log
         ax.plot(ref["time"], ref["tau_ref"], "k--", lw=0.8, label="reference")
+        if twin is not None:  # the regulated torque is taken from rest at the start: its overshoot is no finding
+            peak = max(float(np.max(c.log["tau_loadcell"][c.log["time"] < START_UP_S]))
+                       for c in result.cases if c.name == name)
+            ax.annotate("start-up: 0.5 N·m taken from rest\n(before the push; not evaluated)", xy=(0.0, peak),
+                        xytext=(0.25, 0.97), textcoords="axes fraction", fontsize=7, va="top",
+                        arrowprops={"arrowstyle": "->", "lw": 0.6})
         ax.set(title=name, xlabel="time [s]", ylabel="load-cell torque [N·m]")
         handles, labels = ax.get_legend_handles_labels()
         if twin is not None:

@@ -181,7 +181,7 @@ def write_log(log: RunLog, path: str | Path, *, overwrite: bool = False) -> Path
                        f"{', '.join(_WRITERS)}")
     columns = {name: _float_column_for_writing(name, values) for name, values in log.columns.items()}
     _check_columns(list(columns), set(log.units), "the log's units")
-    _check_samples(columns, max_jitter=math.inf)
+    check_samples(columns, max_jitter=math.inf)
     writer(columns, dict(log.units), _meta_json(log.meta), path, overwrite)
     return path
 
@@ -316,7 +316,7 @@ def read_log(path: str | Path, *, joint: str = "hinge", max_jitter: float = 0.05
         _check_columns(list(raw.columns), set(raw.declared), raw.where)
         log_units = _units(list(raw.columns), raw.declared, units, joint, raw.where)
         columns = {name: _to_float(name, values) for name, values in raw.columns.items()}
-        _check_samples(columns, max_jitter=max_jitter)
+        check_samples(columns, max_jitter=max_jitter)
     except LogError as err:
         err.located(path)
         raise
@@ -894,13 +894,14 @@ def _units(names: Sequence[str], declared: dict[str, str], standard: dict[str, s
 
 def _is_number(cell: Any) -> bool:
     try:
-        _cell_to_float(cell)
+        cell_to_float(cell)
     except (TypeError, ValueError):
         return False
     return True
 
 
-def _cell_to_float(cell: Any) -> float:
+def cell_to_float(cell: Any) -> float:
+    """A cell of a file as a float: text matching :data:`NUMBER`, or a real number; TypeError or ValueError else."""
     if isinstance(cell, str):
         if not NUMBER.fullmatch(cell):
             raise ValueError(cell)
@@ -922,7 +923,7 @@ def _to_float(name: str, values: Any) -> np.ndarray:
     out = np.empty(len(values))
     for i, cell in enumerate(values):
         try:
-            out[i] = _cell_to_float(cell)
+            out[i] = cell_to_float(cell)
         except (TypeError, ValueError):
             what = "empty cell" if cell is None or (isinstance(cell, str) and not cell.strip()) else (
                 f"{cell!r} is not a number")
@@ -935,7 +936,7 @@ def _rows(indices: np.ndarray) -> str:
     return shown + (", ..." if len(indices) > FIRST_FEW else "")
 
 
-def _check_samples(columns: dict[str, np.ndarray], *, max_jitter: float, first: int = 0) -> None:
+def check_samples(columns: dict[str, np.ndarray], *, max_jitter: float, first: int = 0) -> None:
     """Equal lengths, length, finiteness, strictly increasing ``time``, regular sampling.
 
     ``first`` is the index in the file of the columns' first sample (a part of a record), for the rows named.

@@ -44,12 +44,13 @@ from sim.logio import (
     UNIT_ALIASES,
     LogError,
     SlideRunLog,
-    _cell_to_float,
-    _check_samples,
+    cell_to_float,
+    check_samples,
     joint_units,
     read_variables,
     row_of,
 )
+from sim.params import did_you_mean
 from sim.runlog import RunLog
 
 INTERPOLATIONS = ("linear", "previous")
@@ -152,7 +153,7 @@ def log_map_from_dict(data: Any) -> LogMap:
         raise LogMapError("[log] must be a table")
     for key in data:
         if key not in KEYS:
-            raise LogMapError(f"[log] has no key {key!r}{_did_you_mean(key, KEYS)}; valid keys: {', '.join(KEYS)}")
+            raise LogMapError(f"[log] has no key {key!r}{did_you_mean(key, KEYS)}; valid keys: {', '.join(KEYS)}")
     columns = _string_table(data, "columns")
     for name, expression in columns.items():
         _parse(expression, f"columns.{name}")
@@ -213,11 +214,6 @@ def with_options(data: dict[str, Any], options: Sequence[str]) -> dict[str, Any]
         else:
             out[key] = value
     return out
-
-
-def _did_you_mean(name: str, valid: Sequence[str]) -> str:
-    close = difflib.get_close_matches(name, list(valid), n=1)
-    return f" (did you mean {close[0]!r}?)" if close else ""
 
 
 def _string_table(data: dict[str, Any], key: str) -> dict[str, str]:
@@ -528,7 +524,7 @@ def _mapped(path: Path, log_map: LogMap, joint: str, max_jitter: float) -> Mappe
             part, note = _resampled(part, log_map, start)
             own.append(note if len(spans) == 1 else f"span {k + 1}: {note}")
         else:
-            _check_samples(part, max_jitter=max_jitter, first=start)
+            check_samples(part, max_jitter=max_jitter, first=start)
         span_notes += own
         meta = {**found.meta, "mapping": {"file": path.name, "notes": notes + own, "span": k + 1,
                                           "spans": len(spans)}}
@@ -556,14 +552,14 @@ class _Lookup:
 
     def listing(self, near: str | None = None) -> str:
         names = list(self.values)
-        hint = _did_you_mean(near, names) if near else ""
+        hint = did_you_mean(near, names) if near else ""
         shown = ", ".join(names[:40]) + (f", ... ({len(names)} in all)" if len(names) > 40 else "")
         return f"its variables: {shown}{hint}"
 
     def get(self, name: str) -> Any:
         if name not in self.cache:
             if name not in self.values:
-                raise LogMapError(f"the file has no variable {name!r}{_did_you_mean(name, list(self.values))}; "
+                raise LogMapError(f"the file has no variable {name!r}{did_you_mean(name, list(self.values))}; "
                                   f"{self.listing()}")
             value = _numbers(name, self.values[name])
             if name in self.bits:
@@ -599,7 +595,7 @@ def _numbers(name: str, value: Any) -> Any:
         out = np.empty(len(cells))
         for i, cell in enumerate(cells):
             try:
-                out[i] = float(cell) if isinstance(cell, (bool, np.bool_)) else _cell_to_float(cell)
+                out[i] = float(cell) if isinstance(cell, (bool, np.bool_)) else cell_to_float(cell)
             except (TypeError, ValueError, OverflowError):
                 what = "empty" if cell is None or (isinstance(cell, str) and not cell.strip()) else (
                     f"{str(cell)[:40]!r}, not a number")

@@ -146,11 +146,14 @@ def _input_paths(inputs: Inputs) -> dict[Path, tuple[str, Path]]:
 
 def _output_files(args: argparse.Namespace) -> list[tuple[str, Path, str | None]]:
     """The files a run writes, as (flag, path, name): --json, --rerun and --save-rig (name None), then each
-    file the command declared --plot writes (``args.plot_files``, :func:`add_output_args`) in that folder."""
+    file the command declared an output folder gets (``args.plot_files`` for --plot, :func:`add_output_args`;
+    ``args.out_files`` for --out) in that folder."""
     files = [(_option(f), Path(getattr(args, f)), None) for f in OUTPUT_FILE_FLAGS
              if getattr(args, f, None) is not None]
-    if getattr(args, "plot", None) is not None:
-        files += [("--plot", Path(args.plot) / name, name) for name in getattr(args, "plot_files", ())]
+    for flag in OUTPUT_DIR_FLAGS:
+        if getattr(args, flag, None) is not None:
+            files += [(_option(flag), Path(getattr(args, flag)) / name, name)
+                      for name in getattr(args, f"{flag}_files", ())]
     return files
 
 
@@ -194,8 +197,8 @@ def _input_clash(flag: str, path: Path, name: str | None, input_flag: str, input
     if name is None:
         return (f"{flag} {path} is an input of this run ({input_flag}); inputs are never overwritten: give {flag} "
                 f"another file")
-    return (f"--plot {path.parent} would write {name} over {input_flag} {input_path}, an input of this run; inputs "
-            f"are never overwritten: give --plot another folder")
+    return (f"{flag} {path.parent} would write {name} over {input_flag} {input_path}, an input of this run; inputs "
+            f"are never overwritten: give {flag} another folder")
 
 
 def _same_file(first: tuple[str, Path, str | None], second: tuple[str, Path, str | None]) -> str:
@@ -203,8 +206,8 @@ def _same_file(first: tuple[str, Path, str | None], second: tuple[str, Path, str
     (flag, path, _), (other_flag, other_path, name) = first, second
     if name is None:
         return f"{flag} and {other_flag} name the same file, {path}; give each its own"
-    return (f"{flag} {path} is the file --plot {other_path.parent} writes {name} to; give {flag} another file or "
-            f"--plot another folder")
+    return (f"{flag} {path} is the file {other_flag} {other_path.parent} writes {name} to; give {flag} another file "
+            f"or {other_flag} another folder")
 
 
 def _check_output_file(parser: argparse.ArgumentParser, option: str, path: Path) -> None:

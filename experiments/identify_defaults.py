@@ -126,6 +126,9 @@ PARTS = {"drivetrain": DRIVETRAIN, "sensor": SENSOR, "joint": DRIVETRAIN + SENSO
 # The sensor part's experiments by case kind, each its own figure group.
 SENSOR_CASES = {"calibration": run_calibration, "thermal": run_thermal}
 DEFAULT_PART = "drivetrain"
+# the files a run writes in --out (checked against the inputs before it starts)
+OUT_FILES = ("settings.json", "evals.jsonl", "state.pkl", "defaults.json", "best_params.toml", "report.json",
+             "report.md")
 FIT_TABLES = ("VI", "VII", "III", "IV", "III-B resolution", "V", "III-C")
 # Rows reported but not fitted: figures of an instrument the simulation does not model.
 UNFITTED = {(table, quantity) for key, table, quantity, *_ in THERMAL_FIGURES if key in NOT_MODELLED}
@@ -520,6 +523,7 @@ def main(argv: list[str] | None = None) -> None:
                         help="result directory: evaluations, strategy state, best_params.toml, report "
                              "(default identify_run)")
     parser.add_argument("--resume", action="store_true", help="continue the run in --out, reusing its evaluations")
+    parser.set_defaults(out_files=OUT_FILES)
     parser.add_argument("--budget", type=positive_int, default=500, metavar="N",
                         help="candidates to evaluate (default 500; the last generation is completed)")
     parser.add_argument("--seeds", type=seed_list, default=(0, 1), metavar="S,S",

@@ -177,3 +177,13 @@ def test_a_file_or_data_error_is_one_line_naming_the_file_once_without_the_usage
     assert done.returncode == 2 and len(lines) == 1, done.stderr
     assert lines[0].startswith(f"python -m {args[0]}: error: ") and "usage" not in done.stderr
     assert lines[0].count(named) == 1, lines[0]
+
+
+def test_identify_defaults_refuses_a_params_file_its_out_folder_would_overwrite(tmp_path):
+    from experiments import identify_defaults
+
+    params = tmp_path / "best_params.toml"
+    params.write_text("[friction]\nbreakaway_torque_nm = 0.2\n")
+    with pytest.raises(SystemExit) as exc:
+        identify_defaults.main(["--params", str(params), "--out", str(tmp_path), "--resume", "--duration", "0.05"])
+    assert exc.value.code == 2 and params.read_text() == "[friction]\nbreakaway_torque_nm = 0.2\n"

@@ -106,7 +106,7 @@ def jitter_fraction(text: str) -> float:
 def main(argv: list[str] | None = None) -> None:
     parser = cli_parser(__doc__, __spec__.name)
     parser.add_argument("log", type=Path, nargs="+",
-                        help="run log(s) of one rig (.csv, .parquet, .mat), fitted together")
+                        help="run log(s) or records of one rig (.csv, .parquet, .mat, .json), fitted together")
     parser.add_argument("--rig", type=Path, required=True, metavar="TOML", help="rig description")
     parser.add_argument("--validate", type=Path, nargs="+", default=[], metavar="LOG",
                         help="validation log(s) of the same rig: fit the estimation logs whole, score on these")

@@ -194,7 +194,7 @@ def with_options(data: dict[str, Any], options: Sequence[str]) -> dict[str, Any]
         key, sep, text = option.partition("=")
         key = key.strip()
         if not sep or not key:
-            raise LogMapError(f"--log {option!r}: expected KEY=VALUE, e.g. --log columns.tau_cmd='vir * gtau'")
+            raise LogMapError(f"{option!r}: expected KEY=VALUE, e.g. --log columns.tau_cmd='vir * gtau'")
         try:
             parsed = tomllib.loads(f"v = {text}")
         except (ValueError, RecursionError):  # TOMLDecodeError; too many digits; nested too deep
@@ -205,11 +205,12 @@ def with_options(data: dict[str, Any], options: Sequence[str]) -> dict[str, Any]
         if not isinstance(value, str) and not (numeric and isinstance(value, (int, float))):
             value = text.strip()  # enable=true, records=2024: names, as typed
         if dot:
-            if table not in ("columns", "units", "twos_complement") or not name:
-                raise LogMapError(f"--log {option!r}: {table!r} has no members; tables: columns, units, "
-                                  f"twos_complement")
+            tables = ("columns", "units", "twos_complement")
+            if table not in tables or not name:
+                raise LogMapError(f"{option!r}: {table!r} has no members{did_you_mean(table.lower(), tables)}; "
+                                  f"tables: {', '.join(tables)}")
             if not isinstance(out.setdefault(table, {}), dict):
-                raise LogMapError(f"--log {option!r}: {table} = {out[table]!r} is not a table to set a member of")
+                raise LogMapError(f"{option!r}: {table} = {out[table]!r} is not a table to set a member of")
             out[table][name] = value
         else:
             out[key] = value
@@ -527,7 +528,8 @@ def _mapped(path: Path, log_map: LogMap, joint: str, max_jitter: float) -> Mappe
             check_samples(part, max_jitter=max_jitter, first=start)
         span_notes += own
         meta = {**found.meta, "mapping": {"file": path.name, "notes": notes + own, "span": k + 1,
-                                          "spans": len(spans)}}
+                                          "spans": len(spans), "first_row": row_of(start),
+                                          "resampled_s": log_map.resample_s}}
         logs.append((SlideRunLog if joint == "slide" else RunLog)(part, dict(column_units), meta))
     return MappedRecord(tuple(logs), tuple(notes + span_notes))
 
@@ -632,8 +634,8 @@ def _enabled_spans(enabled: np.ndarray, time: np.ndarray, expression: str) -> tu
         return f"rows {row_of(a)}-{row_of(b - 1)} ({time[a]:.6g}-{time[b - 1]:.6g} s)"
 
     if not kept:
-        what = (f"; enabled only in {', '.join(rows(a, b) for a, b in runs[:5])}, each shorter than "
-                f"{MIN_SPAN_SAMPLES} samples") if runs else ""
+        what = (f": it is nonzero only in {', '.join(rows(a, b) for a, b in runs[:5])}, each shorter than "
+                f"{MIN_SPAN_SAMPLES} samples" if runs else f": it is 0 in all {len(on)} samples")
         raise LogMapError(f"enable = {expression!r}: the torque is never enabled long enough to analyse{what}")
     off = len(on) - int(on.sum())
     note = (f"enable = {expression}: {len(kept)} span(s) kept, {', '.join(rows(a, b) for a, b in kept)}; "
@@ -662,6 +664,14 @@ def _resampled(columns: dict[str, np.ndarray], log_map: LogMap, first: int) -> t
         i = int(back[0]) + 1
         raise LogError(f"column 'time', row {row_of(i + first)}: {time[i]:.9g} s does not exceed {time[i - 1]:.9g} s; "
                        f"time must increase strictly ({len(back)} such row(s))", column="time", row=row_of(i + first))
+    median = float(np.median(dt))
+    jitter = float(np.max(np.abs(dt - median)) / median)
+    steps = float(time[-1] - time[0]) / step * (1 + 1e-12)  # a Python float: inf rather than a warning
+    if not MIN_SAMPLES - 1 <= steps <= MAX_UPSAMPLING * len(time):
+        raise LogError(f"resample = {1e3 * step:.6g} ms would make {np.floor(steps) + 1:.6g} sample(s) of the "
+                       f"record's {len(time)} over {time[-1] - time[0]:.6g} s; a grid needs at least {MIN_SAMPLES} "
+                       f"samples and at most {MAX_UPSAMPLING} times the record's: choose a step near its median "
+                       f"step, {1e3 * median:.6g} ms")
     max_gap = log_map.max_gap_s if log_map.max_gap_s is not None else DEFAULT_GAP_STEPS * step
     gaps = np.flatnonzero(dt > max_gap)
     if len(gaps):
@@ -669,14 +679,6 @@ def _resampled(columns: dict[str, np.ndarray], log_map: LogMap, first: int) -> t
         raise LogError(f"column 'time', row {row_of(i + first)}: a gap of {1e3 * dt[i - 1]:.6g} ms after "
                        f"{time[i - 1]:.6g} s, longer than max_gap = {1e3 * max_gap:.6g} ms ({len(gaps)} such gap(s)); "
                        f"cut the record there or raise max_gap", column="time", row=row_of(i + first))
-    median = float(np.median(dt))
-    jitter = float(np.max(np.abs(dt - median)) / median)
-    steps = float(time[-1] - time[0]) / step * (1 + 1e-12)  # a Python float: inf rather than a warning
-    if not MIN_SAMPLES - 1 <= steps <= MAX_UPSAMPLING * len(time):
-        raise LogError(f"resample = {1e3 * step:.6g} ms makes {np.floor(steps) + 1:.6g} sample(s) of the record's "
-                       f"{len(time)} over {time[-1] - time[0]:.6g} s: at least {MIN_SAMPLES} and at "
-                       f"most {MAX_UPSAMPLING} times as many are accepted (its median step is "
-                       f"{1e3 * median:.6g} ms)")
     count = int(math.floor(steps)) + 1
     grid = time[0] + step * np.arange(count)
     if log_map.interpolation == "linear":

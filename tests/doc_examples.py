@@ -42,6 +42,7 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 DOCS = ROOT / "docs"
 EMPS = ROOT.parent / "shared" / "data" / "emps"
+EMPS_SHOWN = "../shared/data/emps"  # the records' folder as the page's command names it, from the project's root
 DURATION_S = 20.0
 SEED = 3
 SERVO_DERIVATIVE_HZ = 8.0  # the servo's velocity filter: a narrow one keeps its duty's noise out of the logger's band
@@ -230,14 +231,14 @@ def own_logs_blocks(folder: Path) -> dict[str, str]:
         ("servo", "servo.json", servo_record, SERVO_RIG, []),
         ("robot", "robot.csv", robot_record, ROBOT_RIG, ROBOT_OPTIONS),
     ]
-    if (EMPS / "DATA_EMPS.mat").exists():
-        runs.insert(0, ("emps", "DATA_EMPS.mat", None, EMPS_RIG, ["--validate", "DATA_EMPS_PULSES.mat"]))
+    if (EMPS / "DATA_EMPS.mat").exists():  # shown as run from the project's root, beside ../shared
+        runs.insert(0, ("emps", f"{EMPS_SHOWN}/DATA_EMPS.mat", None, EMPS_RIG,
+                        ["--validate", f"{EMPS_SHOWN}/DATA_EMPS_PULSES.mat"]))
     for name, record, make, rig, options in runs:
         rig_path = folder / f"{name}.toml"
         rig_path.write_text(rig, encoding="utf-8")
         if make is None:
-            files = [EMPS / record, EMPS / options[1]]
-            record_arg, extra = str(files[0]), ["--validate", str(files[1])]
+            record_arg, extra = str(ROOT / record), ["--validate", str(ROOT / options[1])]
         else:
             make(folder / record)
             record_arg, extra = str(folder / record), options

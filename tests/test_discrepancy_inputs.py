@@ -73,6 +73,14 @@ def test_positions_in_degrees_are_refused_as_an_implausible_effort_balance(hinge
         analyse(_with(log, q=np.degrees(log["q"])), rig)
 
 
+def test_an_effort_logged_with_the_opposite_sign_is_refused_naming_the_sign(hinge):
+    """The command logged with its sign reversed matches -1 x the rig's inertial terms: refused, saying how to
+    reverse it, rather than analysed into an unexplained remainder."""
+    log, rig = hinge
+    with pytest.raises(InputError, match=r"matches -1(\.\d+)? x the rig's inertial terms: the effort's sign is reversed"):
+        analyse(_with(log, tau_cmd=-np.asarray(log["tau_cmd"])), rig)
+
+
 def test_a_locked_rig_refuses_a_log_whose_lever_turns():
     log, _, _ = hidden_effect_log("free", [], 1, 2.0)
     locked = rig_from_dict({"model": "testbed", "fixture": "locked"})

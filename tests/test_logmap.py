@@ -536,8 +536,9 @@ def test_a_jittery_record_without_resample_is_refused_with_a_hint_to_resample(tm
 def test_a_resample_step_leaving_fewer_than_min_samples_is_refused(tmp_path):
     """60 samples over 59 ms on a 1 s grid would be one sample: refused, not a log of one row."""
     write_csv(tmp_path / "drive.csv", base_columns())
-    with pytest.raises(LogError, match=rf"^drive\.csv: resample = 1000 ms makes 1 sample\(s\) of the record's 60 over "
-                                       rf"0\.059 s: at least {MIN_SAMPLES} and at most {MAX_UPSAMPLING}"):
+    with pytest.raises(LogError, match=rf"^drive\.csv: resample = 1000 ms would make 1 sample\(s\) of the record's 60 "
+                                       rf"over 0\.059 s; a grid needs at least {MIN_SAMPLES} samples and at most "
+                                       rf"{MAX_UPSAMPLING} times the record's: choose a step near its median step, 1 ms"):
         mapped(tmp_path / "drive.csv", resample="1 s", max_gap="2 s")
 
 
@@ -546,8 +547,8 @@ def test_a_resample_step_far_finer_than_the_record_is_refused_before_allocating(
     60) is past MAX_UPSAMPLING too."""
     write_csv(tmp_path / "drive.csv", base_columns())
     for step in ("1e-300 s", "5e-324 s", "1 us"):
-        with pytest.raises(LogError, match=rf"^drive\.csv: resample = .* ms makes .* sample\(s\) of the record's 60 "
-                                           rf".* at most {MAX_UPSAMPLING} times as many"):
+        with pytest.raises(LogError, match=rf"^drive\.csv: resample = .* ms would make .* sample\(s\) of the "
+                                           rf"record's 60 .* at most {MAX_UPSAMPLING} times the record's"):
             mapped(tmp_path / "drive.csv", resample=step, max_gap="1 s")
 
 
@@ -590,6 +591,19 @@ def test_enable_splits_the_record_into_two_logs(tmp_path):
     assert "2 span(s) kept, rows 2-61 (0-0.059 s), rows 67-121 (0.065-0.119 s)" in record.notes[-1]
 
 
+def test_the_analysis_names_a_sample_of_a_later_span_by_its_row_in_the_file(tmp_path):
+    """Span 2 starts at row 67: its sample 10 is row 77 of the file; a resampled record is named by its time."""
+    from sim.discrepancy.checks import located
+
+    enable_record(tmp_path / "drive.csv", np.r_[np.ones(60), np.zeros(5), np.ones(55)])
+    record = mapped(tmp_path / "drive.csv", enable="torque_enable")
+    assert located(record.logs[1], 10) == ("row 77", 77) and located(record.logs[0], 10) == ("row 12", 12)
+    resampled = mapped(tmp_path / "drive.csv", enable="torque_enable", resample="2 ms")
+    assert located(resampled.logs[1], 5) == ("at t = 0.075 s (the record resampled to 2 ms)", None)
+    write_csv(tmp_path / "plain.csv", {"time": 1e-3 * np.arange(5), "tau_cmd": np.zeros(5), "q": np.zeros(5)})
+    assert located(read_log(tmp_path / "plain.csv"), 3) == ("row 5", 5)
+
+
 def test_enabled_spans_shorter_than_min_span_samples_are_left_out_and_named(tmp_path):
     on = np.r_[np.ones(12), np.zeros(3), np.ones(60), np.zeros(3), np.ones(5)]
     enable_record(tmp_path / "drive.csv", on)
@@ -602,10 +616,10 @@ def test_enabled_spans_shorter_than_min_span_samples_are_left_out_and_named(tmp_
 def test_a_record_never_enabled_long_enough_is_refused(tmp_path):
     enable_record(tmp_path / "off.csv", np.zeros(100))
     with pytest.raises(LogError, match=r"^off\.csv: enable = 'torque_enable': the torque is never enabled long enough "
-                                       r"to analyse$"):
+                                       r"to analyse: it is 0 in all 100 samples$"):
         mapped(tmp_path / "off.csv", enable="torque_enable")
     enable_record(tmp_path / "short.csv", np.r_[np.zeros(50), np.ones(20), np.zeros(30)])
-    with pytest.raises(LogError, match=r"^short\.csv: .* enabled only in rows 52-71 \(0\.05-0\.069 s\), each shorter "
+    with pytest.raises(LogError, match=r"^short\.csv: .* it is nonzero only in rows 52-71 \(0\.05-0\.069 s\), each shorter "
                                        r"than 50 samples$"):
         mapped(tmp_path / "short.csv", enable="torque_enable")
 
@@ -721,10 +735,11 @@ def test_with_options_values_become_a_valid_map():
 
 
 @pytest.mark.parametrize(("options", "message"), [
-    (["resample"], r"^--log 'resample': expected KEY=VALUE"),
-    (["=5"], r"^--log '=5': expected KEY=VALUE"),
-    (["enable.x=1"], r"^--log 'enable\.x=1': 'enable' has no members; tables: columns, units, twos_complement"),
-    (["columns=1", "columns.q=x"], r"^--log 'columns\.q=x': columns = '1' is not a table to set a member of"),
+    (["resample"], r"^'resample': expected KEY=VALUE"),
+    (["=5"], r"^'=5': expected KEY=VALUE"),
+    (["enable.x=1"], r"^'enable\.x=1': 'enable' has no members; tables: columns, units, twos_complement"),
+    (["column.q=x"], r"^'column\.q=x': 'column' has no members \(did you mean 'columns'\?\)"),
+    (["columns=1", "columns.q=x"], r"^'columns\.q=x': columns = '1' is not a table to set a member of"),
 ])
 def test_with_options_refuses_what_is_not_key_equals_value(options, message):
     with pytest.raises(LogMapError, match=message):

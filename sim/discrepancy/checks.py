@@ -36,7 +36,7 @@ LOCKED_MOTION_RAD = 0.05  # a locked lever turns by less than 0.05 rad (3°: the
 MAX_EFFORT_RATIO = 3.0  # the baseline's effort error may not exceed 3 x the command (RMS) ...
 MAX_INERTIAL_SCALE = 3.0  # ... unless the logged effort matches the rig's inertial terms within this factor
 POSITION_COLUMNS = ("q", "q_motor")
-ASSUMED_CONVENTION = "assumed (neither the rig nor the log states it)"  # where the time convention comes from
+ASSUMED_CONVENTION = "assumed: neither the rig nor the log states it"  # where the time convention comes from
 
 
 class InputError(ValueError):
@@ -100,7 +100,10 @@ def check_log(log: RunLog, rig: Rig, *, unwrap: bool = False, filter_cutoff_hz: 
     t = np.asarray(log["time"], dtype=float)
     dt = float(np.median(np.diff(t)))
     if dt >= 0.5 / filter_cutoff_hz:
-        hint = (" Column 'time' looks like milliseconds: divide it by 1000." if 0.5 <= dt <= 2.0 else "")
+        resampled = log.meta.get("mapping", {}).get("resampled_s")
+        hint = (" The record was resampled to that step: choose a finer one (resample in the rig's [log] table)."
+                if resampled else " Column 'time' looks like milliseconds: state its unit (units.time = \"ms\" in "
+                "the rig's [log] table, or --log units.time=ms)." if 0.5 <= dt <= 2.0 else "")
         raise InputError(f"column 'time': the median sampling step is {dt:.6g} s ({1 / dt:.4g} Hz); the analysis "
                          f"band ({filter_cutoff_hz:g} Hz) needs at least {2 * filter_cutoff_hz:g} Hz.{hint}",
                          column="time")
@@ -112,9 +115,10 @@ def check_log(log: RunLog, rig: Rig, *, unwrap: bool = False, filter_cutoff_hz: 
         ratio = abs(u[worst]) / peak
         hint = (" Is the command in mN·m or mN?" if ratio > 100 else
                 " Is the command in another unit, or is the rig's peak effort wrong?")
-        raise InputError(f"column 'tau_cmd', row {row_of(worst)}: {u[worst]:.6g} {unit} is {ratio:.3g} x the rig's "
+        where, row = located(log, worst)
+        raise InputError(f"column 'tau_cmd', {where}: {u[worst]:.6g} {unit} is {ratio:.3g} x the rig's "
                          f"peak command {peak:.6g} {unit}; the rig cannot have applied it.{hint}",
-                         column="tau_cmd", row=row_of(worst))
+                         column="tau_cmd", row=row)
     columns = dict(log.columns)
     if rig.joint == "hinge":
         for name in POSITION_COLUMNS:
@@ -126,18 +130,20 @@ def check_log(log: RunLog, rig: Rig, *, unwrap: bool = False, filter_cutoff_hz: 
                 columns[name] = np.unwrap(q)
             elif len(wraps):
                 k = int(wraps[0])
-                raise InputError(f"column {name!r}, row {row_of(k + 1)}: the angle jumps by {q[k + 1] - q[k]:+.4g} rad "
+                where, row = located(log, k + 1)
+                raise InputError(f"column {name!r}, {where}: the angle jumps by {q[k + 1] - q[k]:+.4g} rad "
                                  f"in one sample ({len(wraps)} such jump(s)): an encoder wrapped to one turn? "
-                                 f"Unwrap it (--unwrap)", column=name, row=row_of(k + 1))
+                                 f"Unwrap it (--unwrap)", column=name, row=row)
     if rig.model == "testbed" and rig.fixture == "locked" and "q" in columns:
         q = np.asarray(columns["q"], dtype=float)
         span = float(np.ptp(q))
         if span > LOCKED_MOTION_RAD:
             k = int(np.argmax(np.abs(q - q[0])))
-            raise InputError(f"column 'q': the lever turns through {span:.3g} rad (row {row_of(k)} is "
+            where, row = located(log, k)
+            raise InputError(f"column 'q': the lever turns through {span:.3g} rad ({where} is "
                              f"{q[k] - q[0]:+.3g} rad from the first), but rig {rig.source} says fixture = 'locked' "
                              f"(at most {LOCKED_MOTION_RAD:g} rad); is it a free-fixture log?", column="q",
-                             row=row_of(k))
+                             row=row)
     if columns is log.columns or all(columns[k] is log.columns[k] for k in columns):
         return log
     return type(log)(columns, dict(log.units), dict(log.meta))
@@ -154,6 +160,17 @@ def wrapped_steps(q: np.ndarray) -> np.ndarray:
     return np.flatnonzero(near_turn & (np.abs(steps) > WRAP_STEP_RATIO * typical))
 
 
+def located(log: RunLog, k: int) -> tuple[str, int | None]:
+    """Where sample ``k`` of ``log`` is in its file, in words and as a row (spreadsheet numbering): the row, counted
+    from the file's first for a span of a mapped record; for a resampled record, its time (no row of the file)."""
+    mapping = log.meta.get("mapping", {})
+    if mapping.get("resampled_s"):
+        step_ms = 1e3 * mapping["resampled_s"]
+        return f"at t = {float(log['time'][k]):.6g} s (the record resampled to {step_ms:g} ms)", None
+    row = row_of(k) + int(mapping.get("first_row", row_of(0))) - row_of(0)
+    return f"row {row}", row
+
+
 def check_effort_balance(model: Surrogate, theta: dict[str, float], effort_rmse: float) -> None:
     """Refuse a baseline that needs several times the logged effort to make the logged motion, when its inertial
     terms are what is out of scale.
@@ -164,10 +181,12 @@ def check_effort_balance(model: Surrogate, theta: dict[str, float], effort_rmse:
     and a hinge's sin and cos of its angle) on the fit part, and a log is refused when the baseline's effort
     error exceeds MAX_EFFORT_RATIO x the command's RMS and ``α`` lies outside [1/MAX_INERTIAL_SCALE,
     MAX_INERTIAL_SCALE] (positions in degrees give α ≈ 1/57, in millimetres 1/1000; a command in mN·m 1000).
+    A baseline whose effort error exceeds the command's RMS with ``α`` below -1/MAX_INERTIAL_SCALE has the effort's
+    sign reversed against the position's, and is refused so.
     """
     d = model.data
     command_rms = rms(d.filt(d.u_full)[d.held])
-    if not (command_rms > 0 and effort_rmse > MAX_EFFORT_RATIO * command_rms):
+    if not (command_rms > 0 and effort_rmse > command_rms):
         return
     residual = model.residuals(theta)["effort"]
     inertial = theta["inertia"] * d.acceleration + theta["viscous"] * d.velocity
@@ -183,12 +202,16 @@ def check_effort_balance(model: Surrogate, theta: dict[str, float], effort_rmse:
     scale = np.maximum(np.abs(basis).max(axis=0), 1e-300)
     coef, *_ = np.linalg.lstsq(basis / scale, (residual + inertial)[ok], rcond=None)
     alpha = coef[0] / scale[0]
-    if 1.0 / MAX_INERTIAL_SCALE <= alpha <= MAX_INERTIAL_SCALE:
-        return
     unit = channel_unit("effort", model.rig.joint)
+    said = (f"the rig cannot produce the logged motion with the logged effort: the baseline's effort error is "
+            f"{effort_rmse:.4g} {unit} RMS, {effort_rmse / command_rms:.3g} x the command's {command_rms:.4g} {unit}, "
+            f"and the logged effort matches {alpha:.3g} x the rig's inertial terms")
+    if alpha <= -1.0 / MAX_INERTIAL_SCALE:
+        raise InputError(f"{said}: the effort's sign is reversed against the position's. Reverse one of them "
+                         f"(a minus in the rig's [log] table: columns.tau_cmd = \"-NAME\", or --log "
+                         f"columns.tau_cmd=-NAME)", column="tau_cmd")
+    if effort_rmse <= MAX_EFFORT_RATIO * command_rms or 1.0 / MAX_INERTIAL_SCALE <= alpha <= MAX_INERTIAL_SCALE:
+        return
     position_unit = "m" if model.rig.joint == "slide" else "rad"
-    raise InputError(f"the rig cannot produce the logged motion with the logged effort: the baseline's effort error is "
-                     f"{effort_rmse:.4g} {unit} RMS, {effort_rmse / command_rms:.3g} x the command's {command_rms:.4g} "
-                     f"{unit}, and the logged effort matches {alpha:.3g} x the rig's inertial terms. Check the units "
-                     f"of 'q' ({position_unit}; degrees or millimetres?), 'tau_cmd' ({unit}) and 'time' (s), and the "
-                     f"rig's inertia or mass", column="q")
+    raise InputError(f"{said}. Check the units of 'q' ({position_unit}; degrees or millimetres?), 'tau_cmd' ({unit}) "
+                     f"and 'time' (s), and the rig's inertia or mass", column="q")

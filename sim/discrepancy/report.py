@@ -68,7 +68,8 @@ def format_result(result: DiscrepancyResult) -> str:
     lines[0] += (f"; {split['fit_samples']} / {split['held_out_samples']} analysis-grid samples fit / held out, "
                  f"{split['guard_s']} s filter guards")
     for entry in b["time_convention"]:
-        lines.append(f"  time convention of {entry['log']}: {entry['time_convention']} ({entry['from']})")
+        lines.append(f"  time convention of {entry['log']}, as first read: {entry['time_convention']} "
+                     f"({entry['from']})")
     for key, entry in b["free_parameters"].items():
         lines.append(f"  re-fitted baseline {key}: {_free(entry)}")
     for entry in b.get("record_offsets") or []:

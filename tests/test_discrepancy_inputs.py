@@ -77,7 +77,8 @@ def test_an_effort_logged_with_the_opposite_sign_is_refused_naming_the_sign(hing
     """The command logged with its sign reversed matches -1 x the rig's inertial terms: refused, saying how to
     reverse it, rather than analysed into an unexplained remainder."""
     log, rig = hinge
-    with pytest.raises(InputError, match=r"matches -1(\.\d+)? x the rig's inertial terms: the effort's sign is reversed"):
+    with pytest.raises(InputError,
+                       match=r"matches -1(\.\d+)? x the rig's inertial terms: the effort's sign is reversed"):
         analyse(_with(log, tau_cmd=-np.asarray(log["tau_cmd"])), rig)
 
 

@@ -538,7 +538,8 @@ def test_a_resample_step_leaving_fewer_than_min_samples_is_refused(tmp_path):
     write_csv(tmp_path / "drive.csv", base_columns())
     with pytest.raises(LogError, match=rf"^drive\.csv: resample = 1000 ms would make 1 sample\(s\) of the record's 60 "
                                        rf"over 0\.059 s; a grid needs at least {MIN_SAMPLES} samples and at most "
-                                       rf"{MAX_UPSAMPLING} times the record's: choose a step near its median step, 1 ms"):
+                                       rf"{MAX_UPSAMPLING} times the record's: choose a step near its median step, "
+                                       rf"1 ms"):
         mapped(tmp_path / "drive.csv", resample="1 s", max_gap="2 s")
 
 
@@ -619,8 +620,8 @@ def test_a_record_never_enabled_long_enough_is_refused(tmp_path):
                                        r"to analyse: it is 0 in all 100 samples$"):
         mapped(tmp_path / "off.csv", enable="torque_enable")
     enable_record(tmp_path / "short.csv", np.r_[np.zeros(50), np.ones(20), np.zeros(30)])
-    with pytest.raises(LogError, match=r"^short\.csv: .* it is nonzero only in rows 52-71 \(0\.05-0\.069 s\), each shorter "
-                                       r"than 50 samples$"):
+    with pytest.raises(LogError, match=r"^short\.csv: .* it is nonzero only in rows 52-71 \(0\.05-0\.069 s\), each "
+                                       r"shorter than 50 samples$"):
         mapped(tmp_path / "short.csv", enable="torque_enable")
 
 

@@ -94,6 +94,7 @@ def two_units_in_process():
     return run_units(units=2, seed=0, executor=Executor(1))
 
 
+@pytest.mark.slow  # runs two sensor units' calibration and thermal experiments: about 30 s each
 def test_two_units_give_the_same_result_in_process_and_on_two_processes(two_units_in_process):
     result = two_units_in_process
     assert run_units(units=2, seed=0, executor=Executor(2)) == result
@@ -104,10 +105,12 @@ def test_two_units_give_the_same_result_in_process_and_on_two_processes(two_unit
     assert not result.failures
 
 
+@pytest.mark.slow  # runs two sensor units' calibration and thermal experiments: about 30 s each
 def test_two_units_give_the_same_result_on_a_local_ray_cluster(two_units_in_process):
     assert run_units(units=2, seed=0, executor=Executor(ray="local")) == two_units_in_process
 
 
+@pytest.mark.slow  # runs two sensor units' calibration and thermal experiments: about 30 s each
 def test_the_reference_instruments_figures_are_the_same_for_every_unit_and_the_sensors_are_not(two_units_in_process):
     same = {f.quantity for f in two_units_in_process.figures if f.same_for_every_unit}
     assert same == {"1-h drift RMS at 0 N·m, MINI85 (the reference)", "1-h drift RMS at 10 N·m, MINI85 (the reference)"}

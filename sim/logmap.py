@@ -528,7 +528,7 @@ def _mapped(path: Path, log_map: LogMap, joint: str, max_jitter: float) -> Mappe
             check_samples(part, max_jitter=max_jitter, first=start)
         span_notes += own
         meta = {**found.meta, "mapping": {"file": path.name, "notes": notes + own, "span": k + 1,
-                                          "spans": len(spans), "first_row": row_of(start),
+                                          "spans": len(spans), "first_sample": start,
                                           "resampled_s": log_map.resample_s}}
         logs.append((SlideRunLog if joint == "slide" else RunLog)(part, dict(column_units), meta))
     return MappedRecord(tuple(logs), tuple(notes + span_notes))

@@ -167,7 +167,7 @@ def located(log: RunLog, k: int) -> tuple[str, int | None]:
     if mapping.get("resampled_s"):
         step_ms = 1e3 * mapping["resampled_s"]
         return f"at t = {float(log['time'][k]):.6g} s (the record resampled to {step_ms:g} ms)", None
-    row = row_of(k) + int(mapping.get("first_row", row_of(0))) - row_of(0)
+    row = row_of(k + mapping.get("first_sample", 0))
     return f"row {row}", row
 
 

@@ -228,9 +228,8 @@ def rig_from_dict(data: dict[str, Any], source: str = "<rig>") -> Rig:
         valid = {k: v for k, v in RIGID_FREE.items() if _rigid_name_applies(k, rig.joint)}
     for name in free:
         if name not in valid:
-            close = difflib.get_close_matches(name, list(valid), n=1)
-            hint = f" (did you mean {close[0]!r}?)" if close else ""
-            raise RigError(f"free: {name!r} cannot be re-fitted{hint}; valid names: {', '.join(valid)}")
+            raise RigError(f"free: {name!r} cannot be re-fitted{did_you_mean(name, valid)}; valid names: "
+                           f"{', '.join(valid)}")
     for effect in effects:
         if not EFFECTS[effect.name].applies(rig):
             raise RigError(f"effects: {effect.name!r} does not apply to a {rig_kind(rig)} rig (it applies to: "
@@ -261,9 +260,8 @@ def _effects(tables: Any) -> list[AddedEffect]:
             raise RigError(f"effects[{i}] needs a name; valid names: {', '.join(EFFECTS)}")
         name = table["name"]
         if name not in EFFECTS:
-            close = difflib.get_close_matches(str(name), list(EFFECTS), n=1)
-            hint = f" (did you mean {close[0]!r}?)" if close else ""
-            raise RigError(f"effects[{i}].name = {name!r} is not in the library{hint}; valid names: "
+            raise RigError(f"effects[{i}].name = {name!r} is not in the library{did_you_mean(str(name), EFFECTS)}; "
+                           f"valid names: "
                            f"{', '.join(EFFECTS)}")
         specs = {p.key: p for p in EFFECTS[name].params}
         values = {}
@@ -305,9 +303,7 @@ def _testbed(data: dict[str, Any], source: str) -> Rig:
                 raise RigError(f"[{key}] must be a table of parameters")
             overrides[key] = dict(value)
         else:
-            close = difflib.get_close_matches(key, list(groups) + ["fixture", "free", "effects", "lever_length_m"],
-                                              n=1)
-            hint = f" (did you mean {close[0]!r}?)" if close else ""
+            hint = did_you_mean(key, [*groups, "fixture", "free", "effects", "lever_length_m"])
             raise RigError(f"unknown key {key!r} for model 'testbed'{hint}; valid keys: model, fixture, "
                            f"lever_length_m, free, effects, time_convention, log, and the parameter groups "
                            f"{', '.join(sorted(groups))}")
@@ -342,9 +338,7 @@ def _rigid(data: dict[str, Any], source: str) -> Rig:
     for key, value in data.items():
         if key not in _RIGID_FIELDS or not _rigid_name_applies(key, joint):
             valid = [k for k in _RIGID_FIELDS if _rigid_name_applies(k, joint)]
-            close = difflib.get_close_matches(key, valid, n=1)
-            hint = (f" ({_HINGE_ONLY[key]})" if key in _HINGE_ONLY and joint == "slide" else
-                    f" (did you mean {close[0]!r}?)" if close else "")
+            hint = f" ({_HINGE_ONLY[key]})" if key in _HINGE_ONLY and joint == "slide" else did_you_mean(key, valid)
             raise RigError(f"unknown key {key!r} for a rigid {joint} joint{hint}; valid keys: model, joint, log, "
                            f"free, effects, friction, time_convention, {', '.join(valid)}")
         theta_key, unit_h, unit_s, low, high = _RIGID_FIELDS[key]
